@@ -1,0 +1,54 @@
+"""vfjax: the single-mass vocal-fold model as a differentiable, batched JAX simulator.
+
+Importing vfjax enables 64-bit floats in JAX (``jax_enable_x64``): the model is stiff, its
+event location needs double precision, and float32 silently loses the accuracy the fits and
+derivatives rely on. This is the one process-wide setting vfjax changes; see the README.
+"""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+from . import phases, units  # noqa: E402
+from .model import VocalFoldModel  # noqa: E402
+from .presets import PRESETS, paper_model, preset  # noqa: E402
+from .simulate import DEFAULT_SUBSTEPS, DenseOutput, Simulation, simulate  # noqa: E402
+from .subject import Subject  # noqa: E402
+from .terms import (  # noqa: E402
+    AbstractForce,
+    AbstractObservation,
+    AbstractPressure,
+    AbstractTerm,
+    BernoulliForce,
+    ClosureHold,
+    Context,
+    Elastic,
+    FlowSeparation,
+    TanhDamping,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "DEFAULT_SUBSTEPS",
+    "PRESETS",
+    "AbstractForce",
+    "AbstractObservation",
+    "AbstractPressure",
+    "AbstractTerm",
+    "BernoulliForce",
+    "ClosureHold",
+    "Context",
+    "DenseOutput",
+    "Elastic",
+    "FlowSeparation",
+    "Simulation",
+    "Subject",
+    "TanhDamping",
+    "VocalFoldModel",
+    "paper_model",
+    "phases",
+    "preset",
+    "simulate",
+    "units",
+]

@@ -1,0 +1,203 @@
+"""A vocal-fold model: the subject's constants, a tuple of terms, and the camera scale."""
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike
+
+from ._validate import check_positive
+from .subject import Subject
+from .terms.base import (
+    AbstractForce,
+    AbstractObservation,
+    AbstractPressure,
+    AbstractTerm,
+    Context,
+)
+from .terms.paper import BernoulliForce, ClosureHold, Elastic
+
+# Parameters that live outside the terms: name -> (path from the model, unit).
+_MODEL_PARAMETERS: dict[str, tuple[tuple[str, ...], str]] = {
+    "S": (("S",), "px/mm²"),
+    "P_s": (("subject", "subglottal_pressure"), "dyne/cm²"),
+    "M": (("subject", "mass"), "g"),
+    "l": (("subject", "length"), "cm"),
+    "d": (("subject", "thickness"), "cm"),
+    "A_g0": (("subject", "rest_area"), "cm²"),
+}
+
+
+class VocalFoldModel(eqx.Module):
+    """A single-mass vocal-fold model as a pytree (CGS units inside).
+
+    Build the paper's model with `vfjax.paper_model` or `vfjax.preset`; add or remove terms
+    with `with_term` / `without`; read and set parameters by name with `params` / `set`.
+
+    Arguments:
+        subject: the subject's constants (mass, length, thickness, rest area, air, P_s).
+        terms: the model terms (forces, pressure and observation terms, closure hold).
+        S: scaling factor from model area to image area (pixels per mm²).
+    """
+
+    subject: Subject
+    terms: tuple[AbstractTerm, ...]
+    S: ArrayLike = 1.0
+
+    def __check_init__(self):
+        check_positive("S (scaling factor)", self.S, "px/mm²")
+        names: dict[str, str] = {}
+        for term in self.terms:
+            if not isinstance(term, AbstractTerm):
+                raise TypeError(f"terms must be vfjax terms, got {term!r}")
+            for name in term.parameters:
+                if name in names or name in _MODEL_PARAMETERS:
+                    raise ValueError(f"parameter name {name!r} appears twice in the model")
+                names[name] = type(term).__name__
+        kinds = [type(t) for t in self.terms]
+        if len(set(kinds)) != len(kinds):
+            raise ValueError("a model holds at most one term of each class")
+
+    # ----------------------------------------------------------------- terms
+    def term(self, cls: type) -> AbstractTerm | None:
+        """The model's term of class ``cls`` (or a subclass), or None."""
+        for t in self.terms:
+            if isinstance(t, cls):
+                return t
+        return None
+
+    def has(self, cls: type) -> bool:
+        """Whether the model has a term of class ``cls``."""
+        return self.term(cls) is not None
+
+    def with_term(self, term: AbstractTerm) -> "VocalFoldModel":
+        """A copy with ``term`` added, replacing any term of the same class."""
+        kept = tuple(t for t in self.terms if type(t) is not type(term))
+        return VocalFoldModel(self.subject, kept + (term,), self.S)
+
+    def without(self, *classes: type) -> "VocalFoldModel":
+        """A copy without the terms of the given classes (switches those effects off)."""
+        missing = [c.__name__ for c in classes if not self.has(c)]
+        if missing:
+            raise ValueError(f"the model has no term {', '.join(missing)}")
+        kept = tuple(t for t in self.terms if not isinstance(t, classes))
+        return VocalFoldModel(self.subject, kept, self.S)
+
+    # ------------------------------------------------------------ parameters
+    def parameter_units(self) -> dict[str, str]:
+        """Every parameter name of this model with its unit."""
+        units = {name: unit for name, (_, unit) in _MODEL_PARAMETERS.items()}
+        for term in self.terms:
+            units.update({name: unit for name, (_, unit) in term.parameters.items()})
+        return units
+
+    def params(self) -> dict[str, Array]:
+        """Every parameter of this model by name (values in the units of `parameter_units`)."""
+        return {name: self._where(name)(self) for name in self.parameter_units()}
+
+    def set(self, **values) -> "VocalFoldModel":
+        """A copy with the named parameters replaced; traceable (usable inside jit/grad)."""
+        model = self
+        for name, value in values.items():
+            model = eqx.tree_at(self._where(name), model, jnp.asarray(value, dtype=float))
+        return model
+
+    def _where(self, name: str) -> Callable:
+        if name in _MODEL_PARAMETERS:
+            path = _MODEL_PARAMETERS[name][0]
+
+            def get(m, path=path):
+                for p in path:
+                    m = getattr(m, p)
+                return m
+
+            return get
+        for i, term in enumerate(self.terms):
+            if name in term.parameters:
+                field = term.parameters[name][0]
+                return lambda m, i=i, field=field: getattr(m.terms[i], field)
+        raise KeyError(f"no parameter {name!r}; this model has {sorted(self.parameter_units())}")
+
+    # ---------------------------------------------------------------- physics
+    @property
+    def contact_displacement(self) -> Array:
+        """x_0 (cm)."""
+        return self.subject.contact_displacement
+
+    def _aero(self) -> BernoulliForce:
+        aero = self.term(BernoulliForce)
+        return aero if aero is not None else BernoulliForce()
+
+    def subcritical_displacement(self) -> Array:
+        """x_c (cm) at the steady subglottal pressure: where F_a equals F_s.a."""
+        s = self.subject
+        area = self._aero().subcritical_area(
+            s.subglottal_pressure, s.air_density, s.air_viscosity, s.thickness, s.length
+        )
+        return (area - s.rest_area) / (2.0 * s.length)
+
+    @property
+    def closure_duration(self):
+        """t_c (s) of the closure hold, or None when the model has no hold."""
+        hold = self.term(ClosureHold)
+        return None if hold is None else hold.t_c
+
+    def pressure(self, t: ArrayLike) -> Array:
+        """Subglottal pressure (dyne/cm²) at time ``t`` (s), after the pressure terms."""
+        p = jnp.asarray(self.subject.subglottal_pressure, dtype=float)
+        for term in self.terms:
+            if isinstance(term, AbstractPressure):
+                p = term.pressure(t, p)
+        return p
+
+    def context(self, t, x, v, flow, inner, closing, xc) -> Context:
+        """The `Context` of the force terms at one instant and mode."""
+        s = self.subject
+        aero = self.term(BernoulliForce)
+        pressure = self.pressure(t)
+        if aero is None:
+            f_a = jnp.zeros_like(x)
+        else:
+            f_open = aero.open_force(
+                s.area(x), pressure, s.air_density, s.air_viscosity, s.thickness, s.length
+            )
+            f_a = jnp.where(flow, f_open, 0.0)
+        elastic = self.term(Elastic)
+        return Context(
+            t=t,
+            x=x,
+            v=v,
+            flow=flow,
+            inner=inner,
+            closing=closing,
+            x0=s.contact_displacement,
+            xc=xc,
+            pressure=pressure,
+            aero_force=f_a,
+            stiffness=0.0 if elastic is None else elastic.K,
+            mass=s.mass,
+            length=s.length,
+            thickness=s.thickness,
+        )
+
+    def acceleration(self, t, x, v, flow, inner, closing, xc) -> Array:
+        """dv/dt (cm/s²) = sum of the force terms / M, in the given (frozen) mode."""
+        ctx = self.context(t, x, v, flow, inner, closing, xc)
+        total = jnp.zeros_like(jnp.asarray(x, dtype=float))
+        for term in self.terms:
+            if isinstance(term, AbstractForce):
+                total = total + term.force(ctx)
+        return total / self.subject.mass
+
+    def observe(self, t: Array, x: Array, displacement_at: Callable[[Array], Array]) -> Array:
+        """Observed area in pixels at frame times ``t`` (s) with displacement ``x`` (cm)."""
+        area = self.subject.area(x)
+        for term in self.terms:
+            if isinstance(term, AbstractObservation):
+                area = term.observe(t, area, displacement_at, self.subject.length)
+        return area * 100.0 * self.S
+
+    @property
+    def needs_history(self) -> bool:
+        """Whether an observation term reads the displacement at other times."""
+        return any(isinstance(t, AbstractObservation) and t.needs_history for t in self.terms)

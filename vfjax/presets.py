@@ -1,0 +1,75 @@
+"""The paper's subjects N1-N4 (Tables 2-4) with the subglottal pressure of `MODEL_SPEC.md`."""
+
+from .model import VocalFoldModel
+from .subject import Subject
+from .terms.paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
+from .units import DYNE_PER_CM_PER_N_PER_M
+
+#: Table 3 by sex: (vocal-fold mass in g, vocal-fold length in cm).
+FOLD_BY_SEX = {"male": (0.12, 1.6), "female": (0.075, 1.0)}
+
+#: Tables 3-4 and the inferred subglottal pressure, in the paper's units.
+PRESETS: dict[str, dict] = {
+    "N1": dict(sex="male", S_px_per_mm2=43.7988, K_N_per_m=396.6550, C_f_g_per_s=7536.2,
+               t_c_s=5.25e-3, P_s_dyne_per_cm2=11250.0),
+    "N2": dict(sex="male", S_px_per_mm2=70.7391, K_N_per_m=113.9710, C_f_g_per_s=11250.0,
+               t_c_s=4.0e-3, P_s_dyne_per_cm2=11250.0),
+    "N3": dict(sex="female", S_px_per_mm2=24.9649, K_N_per_m=671.1919, C_f_g_per_s=489.5168,
+               t_c_s=2.75e-3, P_s_dyne_per_cm2=3500.0),
+    "N4": dict(sex="female", S_px_per_mm2=29.6812, K_N_per_m=216.0464, C_f_g_per_s=829.8627,
+               t_c_s=1.5e-3, P_s_dyne_per_cm2=3500.0),
+}  # fmt: skip
+
+#: The paper's reported normalised errors (%) for N1-N4 (Table 4), for reference only.
+PAPER_NORMALISED_ERROR_PERCENT = {"N1": 1.8685, "N2": 1.9959, "N3": 2.1039, "N4": 2.8136}
+
+
+def paper_model(
+    *,
+    K_N_per_m: float,
+    C_f_g_per_s: float,
+    S_px_per_mm2: float,
+    t_c_s: float,
+    P_s_dyne_per_cm2: float,
+    sex: str | None = None,
+    mass_g: float | None = None,
+    length_cm: float | None = None,
+    flow_separation: bool = True,
+    closure_hold: bool = True,
+) -> VocalFoldModel:
+    """The seed paper's model from parameters in the paper's units.
+
+    Arguments:
+        K_N_per_m: stiffness K (N/m; stored as dyne/cm).
+        C_f_g_per_s: damping amplification factor C_f (g/s).
+        S_px_per_mm2: scaling factor S (pixels per mm²).
+        t_c_s: closure duration t_c (s).
+        P_s_dyne_per_cm2: subglottal pressure P_s (dyne/cm²).
+        sex: "male" or "female", choosing Table 3's mass and length; or give both
+            ``mass_g`` (g) and ``length_cm`` (cm).
+        flow_separation: include the flow-separation force.
+        closure_hold: include the closure hold.
+    """
+    if sex is not None:
+        if sex not in FOLD_BY_SEX:
+            raise ValueError(f"sex must be 'male' or 'female', got {sex!r}")
+        mass_default, length_default = FOLD_BY_SEX[sex]
+        mass_g = mass_default if mass_g is None else mass_g
+        length_cm = length_default if length_cm is None else length_cm
+    if mass_g is None or length_cm is None:
+        raise ValueError("give sex='male'/'female', or both mass_g and length_cm")
+    subject = Subject(mass=mass_g, length=length_cm, subglottal_pressure=P_s_dyne_per_cm2)
+    terms = [Elastic(K=K_N_per_m * DYNE_PER_CM_PER_N_PER_M), TanhDamping(C_f=C_f_g_per_s),
+             BernoulliForce()]  # fmt: skip
+    if flow_separation:
+        terms.append(FlowSeparation())
+    if closure_hold:
+        terms.append(ClosureHold(t_c=t_c_s))
+    return VocalFoldModel(subject=subject, terms=tuple(terms), S=S_px_per_mm2)
+
+
+def preset(name: str, **overrides) -> VocalFoldModel:
+    """The paper's subject ``name`` ("N1".."N4"); keyword overrides go to `paper_model`."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
+    return paper_model(**{**PRESETS[name], **overrides})

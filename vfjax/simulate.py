@@ -1,0 +1,341 @@
+"""The integrator: RK4 in a `lax.scan`, with located events, sampled at the camera rate.
+
+Why events are located. The model switches between regimes (air flows or not, inside x_c or
+not, closing or opening, held closed or free). A fixed-step scan that switches with
+`jnp.where` masks evaluated at the RK4 stages has a zero derivative through every switch, so the
+sensitivity of the switching *times* to the parameters is lost (`MODEL_SPEC.md`, "the trap").
+
+How. Each scan iteration advances from the current time towards the next point of a uniform
+step grid with the regime flags frozen (the vector field is then smooth). If a flag's
+switching function changes sign over the trial step, the crossing is located on the step's
+cubic Hermite interpolant, the iteration stops there (the state moves onto the switching
+surface), the flag flips, and the next iteration continues from the event. The event time
+comes from a Newton step on live values, so it carries its derivative (implicit function
+theorem), and so does everything after it. The closure hold freezes the state for t_c from a
+located start, so its release time is differentiable too.
+
+The result is a list of nodes (time, displacement, velocity) with smooth dynamics between
+consecutive nodes. Frames are read off this dense output by cubic Hermite interpolation at the
+camera times, so they too are differentiable in every parameter and in the sampling time.
+Under `jax.vmap` every member of a batch runs the same number of iterations (steps on the grid
+plus a budget for events); a member that finishes early idles.
+"""
+
+import math
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from . import phases
+from ._hermite import hermite, hermite_root, hermite_slope
+from .model import VocalFoldModel
+
+#: Default number of RK4 steps per camera frame. Chosen by the accuracy study in
+#: `benchmarks/accuracy.py` (NMSE against a 1024-steps-per-frame reference well below 1e-4).
+DEFAULT_SUBSTEPS = 16
+#: Event budget per second of simulated time (each glottal cycle has up to 7 events).
+EVENTS_PER_SECOND = 8000.0
+#: A state beyond these bounds is reported as diverged (cm, cm/s).
+_X_LIMIT = 1.0
+_V_LIMIT = 1.0e5
+
+
+class DenseOutput(eqx.Module):
+    """The integrator's nodes: between two consecutive nodes the motion is smooth.
+
+    Attributes:
+        t: node times (s), non-decreasing.
+        x: displacement at the nodes (cm).
+        v: velocity at the nodes (cm/s).
+        phase: phase code of the segment that starts at each node (see `vfjax.phases`).
+    """
+
+    t: Float[Array, " nodes"]
+    x: Float[Array, " nodes"]
+    v: Float[Array, " nodes"]
+    phase: Int[Array, " nodes"]
+
+    def _locate(self, times):
+        n = self.t.shape[-1]
+        j = jnp.clip(jnp.searchsorted(self.t, times, side="right") - 1, 0, n - 2)
+        ta, tb = self.t[j], self.t[j + 1]
+        span = tb - ta
+        ok = span > 0
+        theta = jnp.where(ok, (times - ta) / jnp.where(ok, span, 1.0), 1.0)
+        return j, theta, span
+
+    def displacement(self, times: ArrayLike) -> Array:
+        """Displacement x (cm) at ``times`` (s); clamped to the first and last node."""
+        times = jnp.clip(jnp.asarray(times, dtype=float), self.t[0], self.t[-1])
+        j, theta, span = self._locate(times)
+        return hermite(
+            theta, self.x[j], self.v[j] * span, self.x[j + 1], self.v[j + 1] * span
+        )
+
+    def velocity(self, times: ArrayLike) -> Array:
+        """Velocity v (cm/s) at ``times`` (s), the slope of the displacement interpolant."""
+        times = jnp.clip(jnp.asarray(times, dtype=float), self.t[0], self.t[-1])
+        j, theta, span = self._locate(times)
+        ok = span > 0
+        slope = hermite_slope(
+            theta, self.x[j], self.v[j] * span, self.x[j + 1], self.v[j + 1] * span
+        )
+        return jnp.where(ok, slope / jnp.where(ok, span, 1.0), self.v[j + 1])
+
+    def phase_at(self, times: ArrayLike) -> Array:
+        """Phase code at ``times`` (s): that of the segment containing each time."""
+        j, _, _ = self._locate(jnp.asarray(times, dtype=float))
+        return self.phase[j]
+
+
+class Simulation(eqx.Module):
+    """A simulated recording.
+
+    Attributes:
+        time: frame times (s).
+        area: observed glottal area waveform, GAW (pixels); NaN after a divergence.
+        glottal_area: model glottal area A_g = A_g0 + 2 l x (cm²), negative while the folds
+            overlap.
+        displacement: fold displacement x (cm) at the frames.
+        velocity: fold velocity v (cm/s) at the frames.
+        phase: phase code of each frame (0 opening, 1 open, 2 closing, 3 closed).
+        diverged: the state left the physical range (|x| > 1 cm) or became non-finite.
+        complete: the integration reached the last frame (False when the event budget ran
+            out or it diverged).
+        n_events: number of located events (regime switches).
+        dense: the integrator's nodes, for reading the motion at any time.
+    """
+
+    time: Float[Array, " frames"]
+    area: Float[Array, " frames"]
+    glottal_area: Float[Array, " frames"]
+    displacement: Float[Array, " frames"]
+    velocity: Float[Array, " frames"]
+    phase: Int[Array, " frames"]
+    diverged: Bool[Array, ""]
+    complete: Bool[Array, ""]
+    n_events: Int[Array, ""]
+    dense: DenseOutput
+
+
+class _Carry(NamedTuple):
+    t: Array
+    x: Array
+    v: Array
+    hold_left: Array
+    step: Array  # index of the last grid point reached
+    flow: Array
+    inner: Array
+    closing: Array
+    hold: Array
+    diverged: Array
+    n_events: Array
+
+
+def _phase_code(flow, inner, closing, hold):
+    code = jnp.where(inner, jnp.where(closing, phases.CLOSING, phases.OPENING), phases.OPEN)
+    return jnp.where(hold | ~flow, phases.CLOSED, code)
+
+
+def _rk4(model, t, x, v, dt, mode, xc):
+    def acc(t, x, v):
+        return model.acceleration(t, x, v, *mode, xc)
+
+    a1 = acc(t, x, v)
+    x2, v2 = x + 0.5 * dt * v, v + 0.5 * dt * a1
+    a2 = acc(t + 0.5 * dt, x2, v2)
+    x3, v3 = x + 0.5 * dt * v2, v + 0.5 * dt * a2
+    a3 = acc(t + 0.5 * dt, x3, v3)
+    x4, v4 = x + dt * v3, v + dt * a3
+    a4 = acc(t + dt, x4, v4)
+    x_new = x + dt / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4)
+    v_new = v + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    return x_new, v_new, a1, acc(t + dt, x_new, v_new)
+
+
+def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, t_c):
+    """One scan iteration: a full grid step, a step up to an event, or a stretch of hold."""
+    has_hold = t_c is not None
+
+    def body(c: _Carry, _):
+        active = (c.step < n_steps) & ~c.diverged
+        t_target = (c.step + 1).astype(float) * h
+        dt = t_target - c.t
+
+        # Free motion: trial RK4 step with the regime flags frozen.
+        mode = (c.flow, c.inner, c.closing)
+        x1, v1, a0, a1 = _rk4(model, c.t, c.x, c.v, dt, mode, xc)
+        xs = (c.x, c.v * dt, x1, v1 * dt)
+        vs = (c.v, a0 * dt, v1, a1 * dt)
+        crossed = jnp.stack(
+            [c.flow != (x1 > x0), c.inner != (x1 <= xc), c.closing != (v1 < 0)]
+        )
+        where_ = jnp.stack(
+            [hermite_root(*xs, x0), hermite_root(*xs, xc), hermite_root(*vs, 0.0)]
+        )
+        where_ = jnp.where(crossed, where_, jnp.inf)
+        kind = jnp.argmin(where_)
+        event = jnp.any(crossed)
+        theta = jnp.where(event, jnp.min(jnp.where(crossed, where_, 1.0)), 1.0)
+        is_flow, is_inner, is_dir = (event & (kind == k) for k in range(3))
+        xe = hermite(theta, *xs)
+        ve = hermite(theta, *vs)
+        xe = jnp.where(is_flow, x0, jnp.where(is_inner, xc, xe))
+        ve = jnp.where(is_dir, 0.0, ve)
+        flow, inner, closing = c.flow ^ is_flow, c.inner ^ is_inner, c.closing ^ is_dir
+        starts_hold = is_dir & c.closing & (xe <= x0) if has_hold else jnp.zeros((), bool)
+        free = _Carry(
+            t=jnp.where(event, c.t + theta * dt, t_target),
+            x=jnp.where(event, xe, x1),
+            v=jnp.where(event, ve, v1),
+            hold_left=jnp.where(starts_hold, t_c if has_hold else 0.0, c.hold_left),
+            step=jnp.where(event, c.step, c.step + 1),
+            flow=flow & ~starts_hold,
+            inner=inner | starts_hold,
+            closing=closing & ~starts_hold,
+            hold=starts_hold,
+            diverged=c.diverged,
+            n_events=c.n_events + event.astype(c.n_events.dtype),
+        )
+
+        # Closure hold: the state rests until the hold runs out, then the fold is released.
+        release = c.hold_left <= dt
+        held = _Carry(
+            t=jnp.where(release, c.t + c.hold_left, t_target),
+            x=c.x,
+            v=jnp.zeros_like(c.v),
+            hold_left=jnp.where(release, 0.0, c.hold_left - dt),
+            step=jnp.where(release, c.step, c.step + 1),
+            flow=c.x > x0,
+            inner=c.x <= xc,
+            closing=jnp.zeros((), bool),
+            hold=~release,
+            diverged=c.diverged,
+            n_events=c.n_events + release.astype(c.n_events.dtype),
+        )
+
+        new = jax.tree.map(lambda a, b: jnp.where(c.hold, a, b), held, free)
+        bad = (
+            ~jnp.isfinite(new.x)
+            | ~jnp.isfinite(new.v)
+            | (jnp.abs(new.x) > _X_LIMIT)
+            | (jnp.abs(new.v) > _V_LIMIT)
+        )
+        new = new._replace(diverged=bad)
+        keep = ~active | bad
+        out = jax.tree.map(lambda old, nw: jnp.where(keep, old, nw), c, new)
+        out = out._replace(diverged=c.diverged | (active & bad))
+        code = _phase_code(c.flow, c.inner, c.closing, c.hold)
+        return out, (out.t, out.x, out.v, code)
+
+    return body
+
+
+def _check_static(fps, n_frames, substeps, t_start, max_events):
+    if isinstance(fps, jax.core.Tracer) or not isinstance(fps, (int, float)):
+        raise TypeError(f"fps must be a Python number (it fixes array shapes), got {fps!r}")
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps (frame rate) must be a finite number > 0 Hz, got {fps}")
+    if not isinstance(n_frames, int) or n_frames < 1:
+        raise ValueError(f"n_frames must be an integer >= 1, got {n_frames!r}")
+    if not isinstance(substeps, int) or substeps < 1:
+        raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
+    if not (math.isfinite(t_start) and t_start >= 0):
+        raise ValueError(f"t_start must be a finite time >= 0 s, got {t_start}")
+    if max_events is not None and (not isinstance(max_events, int) or max_events < 0):
+        raise ValueError(f"max_events must be an integer >= 0, got {max_events!r}")
+
+
+@eqx.filter_jit
+def simulate(
+    model: VocalFoldModel,
+    fps: float,
+    n_frames: int,
+    *,
+    substeps: int = DEFAULT_SUBSTEPS,
+    t_start: float = 0.0,
+    time_shift: ArrayLike = 0.0,
+    max_time_shift: float = 0.0,
+    initial_displacement: ArrayLike | None = None,
+    initial_velocity: ArrayLike = 0.0,
+    max_events: int | None = None,
+) -> Simulation:
+    """Simulate a glottal area waveform (GAW) sampled at the camera's frame rate.
+
+    The folds start at ``initial_displacement`` (default: at rest at contact, x = x_0) at time
+    0; frames are taken at ``t_start + time_shift + k / fps`` for k = 0 .. n_frames - 1.
+    Jit-compiled; differentiable (forward and reverse) in every array leaf of ``model`` and in
+    ``time_shift``; vmappable over models with batched leaves.
+
+    Arguments:
+        model: the model (`vfjax.paper_model`, `vfjax.preset`, ...).
+        fps: camera frame rate (Hz), a Python number.
+        n_frames: number of frames.
+        substeps: RK4 steps per frame (the step is 1 / (substeps * fps)).
+        t_start: start of sampling (s), e.g. to skip the onset transient.
+        time_shift: extra, differentiable delay of the sampling (s), in [0, max_time_shift].
+        max_time_shift: the largest ``time_shift`` that will be used (s); extends the
+            integration so the shifted frames stay inside it.
+        initial_displacement: x at t = 0 (cm); default x_0.
+        initial_velocity: v at t = 0 (cm/s).
+        max_events: budget of regime switches; default 8 per ms of simulated time plus 32.
+
+    Returns:
+        A `Simulation`: the GAW in pixels and the model's area, motion and phases per frame,
+        with the ``diverged`` and ``complete`` flags.
+    """
+    _check_static(fps, n_frames, substeps, t_start, max_events)
+    h = 1.0 / (substeps * fps)
+    horizon = t_start + max_time_shift + (n_frames - 1) / fps
+    n_steps = max(1, math.ceil(horizon / h - 1e-9))
+    if max_events is None:
+        max_events = int(EVENTS_PER_SECOND * horizon) + 32
+    x0 = model.contact_displacement
+    xc = model.subcritical_displacement()
+    t_c = model.closure_duration
+
+    x_init = x0 if initial_displacement is None else jnp.asarray(initial_displacement, float)
+    v_init = jnp.asarray(initial_velocity, dtype=float)
+    x_init = jnp.asarray(x_init, dtype=float)
+    start = _Carry(
+        t=jnp.zeros((), float),
+        x=x_init,
+        v=v_init,
+        hold_left=jnp.zeros((), float),
+        step=jnp.zeros((), jnp.int32),
+        flow=x_init > x0,
+        inner=x_init <= xc,
+        closing=v_init < 0,
+        hold=jnp.zeros((), bool),
+        diverged=jnp.zeros((), bool),
+        n_events=jnp.zeros((), jnp.int32),
+    )
+    body = _iteration(model, h, n_steps, x0, xc, t_c)
+    end, (ts, xs, vs, codes) = jax.lax.scan(body, start, None, length=n_steps + max_events)
+
+    dense = DenseOutput(
+        t=jnp.concatenate([start.t[None], ts]),
+        x=jnp.concatenate([start.x[None], xs]),
+        v=jnp.concatenate([start.v[None], vs]),
+        phase=jnp.concatenate([codes, codes[-1:]]),
+    )
+    times = t_start + time_shift + jnp.arange(n_frames) / fps
+    x = dense.displacement(times)
+    valid = times <= end.t + 1e-12
+    area = model.observe(times, x, dense.displacement)
+    nan = jnp.nan
+    return Simulation(
+        time=times,
+        area=jnp.where(valid, area, nan),
+        glottal_area=jnp.where(valid, model.subject.area(x), nan),
+        displacement=jnp.where(valid, x, nan),
+        velocity=jnp.where(valid, dense.velocity(times), nan),
+        phase=dense.phase_at(times),
+        diverged=end.diverged,
+        complete=(end.step >= n_steps) & ~end.diverged,
+        n_events=end.n_events,
+        dense=dense,
+    )

@@ -1,0 +1,108 @@
+"""The kinds of model term and the context they are evaluated in.
+
+A term is an `equinox.Module` whose array fields are its parameters (pytree leaves). It is one
+of four kinds, told apart by which abstract class it derives from:
+
+- `AbstractForce`: adds a force (dyne) on one fold to the equation of motion.
+- `AbstractPressure`: transforms the subglottal pressure as a function of time.
+- `AbstractObservation`: transforms the glottal area that the camera sees.
+- `ClosureHold` (in `paper.py`): the discrete closure hold, handled by the integrator.
+
+Every term class lists the user-facing names of its parameters in ``parameters``, a mapping
+``name -> (field, unit)``, so that a model can be read and updated by name (``model.params()``,
+``model.set(K=...)``). Names are unique within a model.
+"""
+
+from collections.abc import Callable
+from typing import ClassVar
+
+import equinox as eqx
+from jaxtyping import Array, ArrayLike, Bool
+
+
+class AbstractTerm(eqx.Module):
+    """Base of every model term. ``parameters`` maps public names to ``(field, unit)``."""
+
+    parameters: ClassVar[dict[str, tuple[str, str]]] = {}
+    #: The parameter values that switch the term off while keeping it in the model
+    #: (used by the diagnosis's score test); empty when removing the term is the only way.
+    off_values: ClassVar[dict[str, float]] = {}
+
+
+class Context(eqx.Module):
+    """Everything a force term may read at one instant (CGS units).
+
+    The discrete mode flags (``flow``, ``inner``, ``closing``) are frozen over each integration
+    segment and switched only at located events; terms must use them, not recompute them from
+    ``x`` and ``v``, so that the vector field stays smooth within a segment.
+
+    Attributes:
+        t: time (s).
+        x: displacement of one fold from its rest position (cm), positive = abducted.
+        v: velocity (cm/s).
+        flow: air flows through the glottis (x > x_0).
+        inner: the fold is inside the sub-critical displacement (x <= x_c).
+        closing: the fold moves toward the midline (v < 0).
+        x0: contact displacement x_0 (cm).
+        xc: sub-critical displacement x_c (cm), where the aerodynamic force equals F_s.a.
+        pressure: subglottal pressure at time t (dyne/cm²).
+        aero_force: Bernoulli aerodynamic force F_a at this instant (dyne), 0 without flow.
+        stiffness: linear stiffness K of the model's elastic term (dyne/cm), 0 if none.
+        mass, length, thickness: the subject's M (g), l (cm) and d (cm).
+    """
+
+    t: ArrayLike
+    x: ArrayLike
+    v: ArrayLike
+    flow: Bool[Array, ""]
+    inner: Bool[Array, ""]
+    closing: Bool[Array, ""]
+    x0: ArrayLike
+    xc: ArrayLike
+    pressure: ArrayLike
+    aero_force: ArrayLike
+    stiffness: ArrayLike
+    mass: ArrayLike
+    length: ArrayLike
+    thickness: ArrayLike
+
+
+class AbstractForce(AbstractTerm):
+    """A force on one fold (dyne), smooth in (t, x, v) for fixed mode flags."""
+
+    def force(self, ctx: Context) -> Array:
+        """The force (dyne) at the instant described by ``ctx``."""
+        raise NotImplementedError
+
+
+class AbstractPressure(AbstractTerm):
+    """A transformation of the subglottal pressure over time."""
+
+    def pressure(self, t: ArrayLike, mean_pressure: ArrayLike) -> Array:
+        """Pressure (dyne/cm²) at time ``t`` (s) given the steady pressure ``mean_pressure``."""
+        raise NotImplementedError
+
+
+class AbstractObservation(AbstractTerm):
+    """A transformation of the glottal area on its way to the camera."""
+
+    #: True when the term needs the displacement at times other than the frame times.
+    needs_history: ClassVar[bool] = False
+
+    def observe(
+        self,
+        t: Array,
+        area: Array,
+        displacement_at: Callable[[Array], Array],
+        length: ArrayLike,
+    ) -> Array:
+        """Observed area (cm²) at frame times ``t`` (s).
+
+        Arguments:
+            t: frame times (s).
+            area: the area so far (cm²) at those times.
+            displacement_at: maps an array of times (s) to the fold displacement (cm), from
+                the integrator's dense output.
+            length: vocal-fold length l (cm).
+        """
+        raise NotImplementedError
