@@ -19,7 +19,11 @@ def hermite(theta, y0, d0, y1, d1):
 def hermite_slope(theta, y0, d0, y1, d1):
     """d/dtheta of `hermite`."""
     t2 = theta * theta
-    return (6 * t2 - 6 * theta) * (y0 - y1) + (3 * t2 - 4 * theta + 1) * d0 + (3 * t2 - 2 * theta) * d1
+    return (
+        (6 * t2 - 6 * theta) * (y0 - y1)
+        + (3 * t2 - 4 * theta + 1) * d0
+        + (3 * t2 - 2 * theta) * d1
+    )
 
 
 def _safe_div(num, den, tiny=1e-300):
@@ -27,26 +31,44 @@ def _safe_div(num, den, tiny=1e-300):
     return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
 
 
-def hermite_root(y0, d0, y1, d1, target, iterations: int = 8):
-    """First-found root in [0, 1] of ``hermite(theta) = target``, assuming a sign change.
+def _poly(c, theta):
+    return c[0] + theta * (c[1] + theta * (c[2] + theta * c[3]))
+
+
+def _poly_slope(c, theta):
+    return c[1] + theta * (2.0 * c[2] + theta * 3.0 * c[3])
+
+
+def hermite_root(y0, d0, y1, d1, target, iterations: int = 10):
+    """First root in [0, 1] of ``hermite(theta) = target``, given a sign change over [0, 1].
+
+    When the step starts exactly on the surface (a just-located event), the trivial root at
+    theta = 0 is divided out, so a trajectory that moves off the surface and comes back within
+    the step yields its return crossing, not a zero-length event at the start.
 
     The bracketed Newton iterations run on stopped gradients; one final Newton step on the
     live coefficients gives the root the derivative of the implicit function theorem,
     d(theta)/dp = -(dg/dp) / (dg/dtheta). This is what makes event times differentiable.
     """
-    c = jax.lax.stop_gradient((y0 - target, d0, y1 - target, d1))
-    g0, g1 = c[0], c[2]
-    theta = jnp.clip(_safe_div(g0, g0 - g1), 0.0, 1.0)
+    g0 = y0 - target
+    live = (g0, d0, 3.0 * (y1 - y0) - 2.0 * d0 - d1, 2.0 * (y0 - y1) + d0 + d1)
+    c = jax.lax.stop_gradient(live)
+    on_surface = c[0] == 0
+    # Deflated polynomial (g / theta) when g(0) = 0; the cubic itself otherwise.
+    p = [jnp.where(on_surface, b, a) for a, b in zip(c, (c[1], c[2], c[3], 0.0 * c[3]))]
+    p_lo, p_hi = p[0], p[0] + p[1] + p[2] + p[3]
+    # No sign change of the deflated polynomial: the trajectory leaves at theta = 0.
+    immediate = on_surface & (jnp.sign(p_lo) == jnp.sign(p_hi))
+    theta = jnp.clip(_safe_div(p_lo, p_lo - p_hi), 0.0, 1.0)
     lo, hi = jnp.zeros_like(theta), jnp.ones_like(theta)
     for _ in range(iterations):
-        g = hermite(theta, *c)
-        same = jnp.sign(g) == jnp.sign(g0)
+        g = _poly(p, theta)
+        same = jnp.sign(g) == jnp.sign(p_lo)
         lo = jnp.where(same, theta, lo)
         hi = jnp.where(same, hi, theta)
-        step = theta - _safe_div(g, hermite_slope(theta, *c))
+        step = theta - _safe_div(g, _poly_slope(p, theta))
         inside = (step > lo) & (step < hi)
         theta = jnp.where(g == 0, theta, jnp.where(inside, step, 0.5 * (lo + hi)))
-    theta = jax.lax.stop_gradient(theta)
-    live = (y0 - target, d0, y1 - target, d1)
-    slope = hermite_slope(theta, *live)
-    return jnp.clip(theta - _safe_div(hermite(theta, *live), slope), 0.0, 1.0)
+    theta = jax.lax.stop_gradient(jnp.where(immediate, 0.0, theta))
+    newton = theta - _safe_div(_poly(live, theta), _poly_slope(live, theta))
+    return jnp.clip(jnp.where(theta > 0, newton, theta), 0.0, 1.0)

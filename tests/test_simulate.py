@@ -1,0 +1,127 @@
+"""The integrator against analytic solutions, and its flags, phases and batching."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vfjax
+from vfjax import ClosureHold, Elastic, Subject, TanhDamping, VocalFoldModel, phases
+
+FPS = 4000.0
+
+
+def _oscillator(K=3.0e5, C_min=0.0, mass=0.1):
+    """Spring (and constant damper) only: no flow, no hold. Events still fire, harmlessly."""
+    terms = (Elastic(K=K), TanhDamping(C_f=0.0, C_min=C_min))
+    return VocalFoldModel(Subject(mass=mass), terms, S=1.0)
+
+
+def test_undamped_oscillator_matches_cosine():
+    m = _oscillator()
+    x_init = 0.02
+    # RK4's global error here is ~ T w (w h)^4 / 120: 4e-7 relative at 16 steps a frame.
+    sim = vfjax.simulate(m, FPS, 201, initial_displacement=x_init, substeps=64)
+    w = np.sqrt(3.0e5 / 0.1)
+    exact = x_init * np.cos(w * np.asarray(sim.time))
+    assert np.max(np.abs(np.asarray(sim.displacement) - exact)) < 1e-10
+    assert np.max(np.abs(np.asarray(sim.velocity) + x_init * w * np.sin(w * np.asarray(sim.time)))) < 1e-5
+    assert int(sim.n_events) > 10  # the folds crossed x_0 and x_c many times on the way
+
+
+def test_damped_oscillator_matches_analytic_solution():
+    K, C, M, x_init = 3.0e5, 40.0, 0.1, 0.02
+    sim = vfjax.simulate(_oscillator(K, C, M), FPS, 201, initial_displacement=x_init)
+    t = np.asarray(sim.time)
+    zeta_w = C / (2 * M)
+    wd = np.sqrt(K / M - zeta_w**2)
+    exact = x_init * np.exp(-zeta_w * t) * (np.cos(wd * t) + zeta_w / wd * np.sin(wd * t))
+    assert np.max(np.abs(np.asarray(sim.displacement) - exact)) < 1e-9
+
+
+def test_closure_hold_lasts_exactly_t_c():
+    m = vfjax.preset("N3")
+    sim = vfjax.simulate(m, FPS, 201)
+    d = sim.dense
+    t, x, v = (np.asarray(a) for a in (d.t, d.x, d.v))
+    x0 = float(m.contact_displacement)
+    # hold segments: consecutive nodes with the same x <= x_0, v == 0, and time advancing
+    holds, start = [], None
+    for i in range(len(t) - 1):
+        resting = x[i] <= x0 and v[i] == 0 and x[i + 1] == x[i] and v[i + 1] == 0
+        resting = resting and (t[i + 1] > t[i] or start is not None)
+        if resting and start is None:
+            start = t[i]
+        if not resting and start is not None:
+            holds.append(t[i] - start)
+            start = None
+    assert len(holds) >= 8
+    np.testing.assert_allclose(holds, 2.75e-3, rtol=0, atol=1e-12)
+
+
+def test_phases_follow_their_definition():
+    m = vfjax.preset("N1")
+    sim = vfjax.simulate(m, FPS, 201)
+    x, v, ph = (np.asarray(a) for a in (sim.displacement, sim.velocity, sim.phase))
+    x0, xc = float(m.contact_displacement), float(m.subcritical_displacement())
+    eps = 1e-9
+    assert np.all(ph[x > xc + eps] == phases.OPEN)
+    assert np.all(ph[x < x0 - eps] == phases.CLOSED)
+    inner = (x < xc - eps) & (x > x0 + eps)
+    assert np.all(ph[inner & (v < -eps)] == phases.CLOSING)
+    assert np.all(ph[inner & (v > eps)] == phases.OPENING)
+    assert set(np.unique(ph)) == {0, 1, 2, 3}
+    # closed frames have (numerically) zero or negative area
+    assert np.all(np.asarray(sim.glottal_area)[ph == phases.CLOSED] <= 1e-9)
+
+
+def test_vmap_over_parameters_equals_a_loop():
+    m = vfjax.preset("N1")
+    Ks = jnp.array([0.9, 1.0, 1.1]) * m.params()["K"]
+    batched = jax.vmap(lambda k: vfjax.simulate(m.set(K=k), FPS, 101).area)(Ks)
+    for k, row in zip(Ks, batched):
+        single = vfjax.simulate(m.set(K=k), FPS, 101).area
+        np.testing.assert_allclose(row, single, rtol=0, atol=1e-9)
+
+
+def test_divergence_is_flagged_not_crashed():
+    # A 1 µg fold with N1's stiffness: omega * dt ~ 10, RK4 is unstable and the state blows up.
+    m = vfjax.preset("N1").set(M=1e-6).without(ClosureHold)
+    sim = jax.jit(lambda m: vfjax.simulate(m, FPS, 101))(m)
+    assert bool(sim.diverged) and not bool(sim.complete)
+    area = np.asarray(sim.area)
+    assert np.isnan(area[-1])  # nothing after the divergence is passed off as a result
+    assert np.all(np.isfinite(area[: np.argmax(np.isnan(area))]))
+    # and a healthy model is not flagged
+    ok = vfjax.simulate(vfjax.preset("N1"), FPS, 101)
+    assert not bool(ok.diverged) and bool(ok.complete)
+
+
+def test_event_budget_exhaustion_is_reported():
+    sim = vfjax.simulate(vfjax.preset("N1"), FPS, 201, max_events=3)
+    assert not bool(sim.complete) and not bool(sim.diverged)
+    assert np.isnan(np.asarray(sim.area)[-1])
+
+
+def test_substeps_converge():
+    m = vfjax.preset("N4")
+    ref = np.asarray(vfjax.simulate(m, FPS, 201, substeps=256).area)
+    errs = []
+    for k in (4, 16):
+        a = np.asarray(vfjax.simulate(m, FPS, 201, substeps=k).area)
+        errs.append(np.sum((a - ref) ** 2) / np.sum(ref**2))
+    assert errs[1] < errs[0] and errs[1] < 1e-6
+
+
+def test_time_shift_is_differentiable_and_moves_the_samples():
+    m = vfjax.preset("N1")
+    shift = 1.0e-4
+
+    def gaw(s):
+        return vfjax.simulate(m, FPS, 101, time_shift=s, max_time_shift=1e-3).area
+
+    later = vfjax.simulate(m, FPS, 101, t_start=shift).area
+    np.testing.assert_allclose(gaw(shift), later, atol=1e-6)
+    _, tangent = jax.jvp(gaw, (shift,), (1.0,))
+    fd = (gaw(shift + 1e-8) - gaw(shift - 1e-8)) / 2e-8
+    assert float(jnp.linalg.norm(tangent - fd) / jnp.linalg.norm(fd)) < 1e-3
