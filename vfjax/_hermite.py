@@ -67,7 +67,7 @@ def hermite_root(y0, d0, y1, d1, target, iterations: int = 10):
         lo = jnp.where(same, theta, lo)
         hi = jnp.where(same, hi, theta)
         step = theta - _safe_div(g, _poly_slope(p, theta))
-        inside = (step > lo) & (step < hi)
+        inside = (step >= lo) & (step <= hi)
         theta = jnp.where(g == 0, theta, jnp.where(inside, step, 0.5 * (lo + hi)))
     theta = jax.lax.stop_gradient(jnp.where(immediate, 0.0, theta))
     newton = theta - _safe_div(_poly(live, theta), _poly_slope(live, theta))
