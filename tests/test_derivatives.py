@@ -66,7 +66,9 @@ def _box_points(n, seed):
     """Latin-hypercube points with every relative factor in [0.2, 1.8], plus the corners that
     give growing overlap (soft, weakly damped) and no closure (stiff, strongly damped)."""
     rng = np.random.default_rng(seed)
-    u = (rng.permuted(np.tile(np.arange(n), (len(NAMES), 1)), axis=1).T + rng.random((n, len(NAMES)))) / n
+    u = (
+        rng.permuted(np.tile(np.arange(n), (len(NAMES), 1)), axis=1).T + rng.random((n, len(NAMES)))
+    ) / n
     pts = 0.2 + 1.6 * u
     corners = np.array([[0.2, 0.2, 1.0, 1.0, 1.0], [1.8, 1.8, 1.0, 1.0, 1.0],
                         [0.2, 1.8, 0.2, 0.2, 1.8], [1.8, 0.2, 1.8, 1.8, 0.2]])  # fmt: skip

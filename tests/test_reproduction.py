@@ -31,9 +31,7 @@ def _mm2(sim):
 
 @eqx.filter_jit
 def _pressure_scan(model, pressures):
-    return jax.vmap(lambda p: vfjax.simulate(model.set(P_s=p), FPS, N_LONG).glottal_area)(
-        pressures
-    )
+    return jax.vmap(lambda p: vfjax.simulate(model.set(P_s=p), FPS, N_LONG).glottal_area)(pressures)
 
 
 @pytest.mark.parametrize("name", ["N1", "N2", "N3", "N4"])

@@ -10,9 +10,9 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 from . import phases, units  # noqa: E402
+from .integrator import DEFAULT_SUBSTEPS, DenseOutput, Simulation, simulate  # noqa: E402
 from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, paper_model, preset  # noqa: E402
-from .simulate import DEFAULT_SUBSTEPS, DenseOutput, Simulation, simulate  # noqa: E402
 from .subject import Subject  # noqa: E402
 from .terms import (  # noqa: E402
     AbstractForce,

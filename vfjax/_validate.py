@@ -51,3 +51,10 @@ def _show(arr: np.ndarray) -> str:
 
 def _u(unit: str) -> str:
     return f" {unit}" if unit else ""
+
+
+def as_float(value):
+    """Field converter: parameters are float arrays (pytree leaves, never static values)."""
+    import jax.numpy as jnp
+
+    return jnp.asarray(value, dtype=float)

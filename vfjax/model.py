@@ -6,7 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._validate import check_positive
+from ._validate import as_float, check_positive
 from .subject import Subject
 from .terms.base import (
     AbstractForce,
@@ -42,7 +42,7 @@ class VocalFoldModel(eqx.Module):
 
     subject: Subject
     terms: tuple[AbstractTerm, ...]
-    S: ArrayLike = 1.0
+    S: ArrayLike = eqx.field(default=1.0, converter=as_float)
 
     def __check_init__(self):
         check_positive("S (scaling factor)", self.S, "px/mm²")

@@ -4,7 +4,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import ArrayLike
 
-from ._validate import check_positive
+from ._validate import as_float, check_positive
 
 
 class Subject(eqx.Module):
@@ -24,13 +24,13 @@ class Subject(eqx.Module):
         air_viscosity: dynamic viscosity mu (poise).
     """
 
-    mass: ArrayLike = 0.12
-    length: ArrayLike = 1.6
-    thickness: ArrayLike = 0.32
-    rest_area: ArrayLike = 0.05
-    subglottal_pressure: ArrayLike = 11250.0
-    air_density: ArrayLike = 1.3e-3
-    air_viscosity: ArrayLike = 1.8e-4
+    mass: ArrayLike = eqx.field(default=0.12, converter=as_float)
+    length: ArrayLike = eqx.field(default=1.6, converter=as_float)
+    thickness: ArrayLike = eqx.field(default=0.32, converter=as_float)
+    rest_area: ArrayLike = eqx.field(default=0.05, converter=as_float)
+    subglottal_pressure: ArrayLike = eqx.field(default=11250.0, converter=as_float)
+    air_density: ArrayLike = eqx.field(default=1.3e-3, converter=as_float)
+    air_viscosity: ArrayLike = eqx.field(default=1.8e-4, converter=as_float)
 
     def __check_init__(self):
         check_positive("mass", self.mass, "g")

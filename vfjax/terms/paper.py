@@ -6,7 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from .._validate import check_finite, check_nonnegative, check_positive
+from .._validate import as_float, check_finite, check_nonnegative, check_positive
 from .base import AbstractForce, AbstractTerm, Context
 
 
@@ -17,7 +17,7 @@ class Elastic(AbstractForce):
         K: stiffness (dyne/cm). The paper's Table 4 gives N/m: use `Elastic.from_n_per_m`.
     """
 
-    K: ArrayLike
+    K: ArrayLike = eqx.field(converter=as_float)
     parameters: ClassVar = {"K": ("K", "dyne/cm")}
 
     def __check_init__(self):
@@ -45,8 +45,8 @@ class TanhDamping(AbstractForce):
         length_scale: displacement scale of the tanh (cm), a static constant.
     """
 
-    C_f: ArrayLike
-    C_min: ArrayLike = 0.0
+    C_f: ArrayLike = eqx.field(converter=as_float)
+    C_min: ArrayLike = eqx.field(default=0.0, converter=as_float)
     length_scale: float = eqx.field(default=1.0, static=True)
     parameters: ClassVar = {"C_f": ("C_f", "g/s"), "C_min": ("C_min", "g/s")}
 
@@ -83,10 +83,10 @@ class BernoulliForce(AbstractForce):
         separation_force: F_s.a., the aerodynamic force that defines x_c (dyne); 0 in Table 2.
     """
 
-    entrance_loss: ArrayLike = 0.875
-    inlet_coefficient: ArrayLike = 1.37
-    outlet_coefficient: ArrayLike = 0.5
-    separation_force: ArrayLike = 0.0
+    entrance_loss: ArrayLike = eqx.field(default=0.875, converter=as_float)
+    inlet_coefficient: ArrayLike = eqx.field(default=1.37, converter=as_float)
+    outlet_coefficient: ArrayLike = eqx.field(default=0.5, converter=as_float)
+    separation_force: ArrayLike = eqx.field(default=0.0, converter=as_float)
     parameters: ClassVar = {"F_sa": ("separation_force", "dyne")}
 
     def __check_init__(self):
@@ -147,7 +147,7 @@ class ClosureHold(AbstractTerm):
         t_c: closure duration (s).
     """
 
-    t_c: ArrayLike
+    t_c: ArrayLike = eqx.field(converter=as_float)
     parameters: ClassVar = {"t_c": ("t_c", "s")}
 
     def __check_init__(self):

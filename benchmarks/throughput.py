@@ -1,0 +1,112 @@
+"""Throughput: 201-frame recordings per second, vfjax (vmapped, jitted) against a scalar
+numba loop of the same model at the paper's step (k = 128 steps per frame, one thread).
+
+Figures printed, all in float64, from one run on the same machine:
+- compile time of the batched simulator;
+- recordings per second for batches of 1, 64 and 256 at vfjax's default step, on one core
+  and with the batch split over the machine's cores (one XLA host device per core);
+- particle-steps per second at an equal step (k = 128 for both).
+
+Run: python benchmarks/throughput.py [--repeats 5]
+"""
+
+import os
+
+# One XLA host device per core, so that a batch can be split over the cores (this script's
+# own process only; vfjax itself changes no XLA flag).
+os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={os.cpu_count()}")
+
+import argparse  # noqa: E402
+import pathlib  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from jax.sharding import Mesh, NamedSharding, PartitionSpec  # noqa: E402
+
+import vfjax  # noqa: E402
+
+sys.path.insert(0, str(pathlib.Path(__file__).parent))
+FPS, N = 4000.0, 201
+
+
+def batch_of(model, n, seed=0):
+    """``n`` copies of ``model`` with K, C_f, S, t_c scattered by ±10 %."""
+    rng = np.random.default_rng(seed)
+    p = model.params()
+    scale = lambda name: jnp.asarray(p[name] * rng.uniform(0.9, 1.1, n))  # noqa: E731
+    return jax.vmap(lambda k, c, s, t: model.set(K=k, C_f=c, S=s, t_c=t))(
+        scale("K"), scale("C_f"), scale("S"), scale("t_c")
+    )
+
+
+def best_time(fn, repeats):
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--substeps", type=int, default=vfjax.DEFAULT_SUBSTEPS)
+    args = ap.parse_args()
+    from numba_reference import simulate_gaw
+
+    model = vfjax.preset("N1")
+    p = {k: float(v) for k, v in model.params().items()}
+    numba_args = (p["K"], p["C_f"], p["S"], p["t_c"], p["P_s"], p["M"], p["l"], FPS, N)
+    simulate_gaw(*numba_args, 128)  # compile
+    n_rec = 50
+    t_numba = (
+        best_time(lambda: [simulate_gaw(*numba_args, 128) for _ in range(n_rec)], args.repeats)
+        / n_rec
+    )
+    numba_rps = 1.0 / t_numba
+    devices = jax.devices()
+    print(f"machine: {os.cpu_count()} cores; jax {jax.__version__}, {len(devices)} CPU devices")
+    print(
+        f"numba scalar loop, k=128 (paper's step), 1 thread: {numba_rps:8.0f} recordings/s "
+        f"({t_numba * 1e3:.2f} ms each)"
+    )
+
+    def runner(k):
+        return jax.jit(jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=k).area))
+
+    split = NamedSharding(Mesh(np.array(devices), ("batch",)), PartitionSpec("batch"))
+    print(f"vfjax, default step k={args.substeps} (dt = 1/({args.substeps} fps)):")
+    for b in (1, 64, 256):
+        placements = [("1 core", devices[0])]
+        if b % len(devices) == 0 and len(devices) > 1:
+            placements.append((f"{len(devices)} cores", split))
+        for label, where in placements:
+            batch = jax.device_put(batch_of(model, b), where)
+            fn = runner(args.substeps)
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(batch))
+            compile_s = time.perf_counter() - t0
+            t = best_time(lambda fn=fn, batch=batch: fn(batch), args.repeats)
+            print(
+                f"  batch {b:4d}, {label:7s}: {b / t:8.0f} recordings/s "
+                f"({b / t / numba_rps:5.1f}x numba)   compile + first run {compile_s:.2f} s"
+            )
+
+    steps = (N - 1) * 128
+    print("equal step k=128 (particle-steps per second; one step = one RK4 step of one model):")
+    print(f"  numba, 1 thread: {steps / t_numba:12.3e}")
+    for b in (64, 256):
+        batch = jax.device_put(batch_of(model, b), devices[0])
+        fn = runner(128)
+        jax.block_until_ready(fn(batch))
+        t = best_time(lambda fn=fn, batch=batch: fn(batch), max(1, args.repeats // 2))
+        rate = b * steps / t
+        print(f"  vfjax batch {b:3d}, 1 core: {rate:12.3e}  ({rate / (steps / t_numba):.2f}x)")
+
+
+if __name__ == "__main__":
+    main()

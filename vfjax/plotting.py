@@ -1,0 +1,51 @@
+"""Figures: GAWs with the model's phases shaded."""
+
+import matplotlib
+
+matplotlib.use("Agg", force=False)
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .phases import PHASE_COLOURS, PHASE_NAMES  # noqa: E402
+
+
+def shade_phases(ax, time_s, phase, alpha: float = 0.35):
+    """Shade the background of ``ax`` by phase code, one span per run of equal phases.
+
+    Arguments:
+        ax: a matplotlib Axes whose x axis is time in ms.
+        time_s: frame times (s).
+        phase: phase code per frame (see `vfjax.phases`).
+    """
+    t = np.asarray(time_s) * 1e3
+    ph = np.asarray(phase)
+    if len(t) < 2:
+        return
+    half = 0.5 * np.median(np.diff(t))
+    starts = np.r_[0, np.nonzero(np.diff(ph))[0] + 1]
+    ends = np.r_[starts[1:], len(ph)]
+    seen = set()
+    for a, b in zip(starts, ends):
+        code = int(ph[a])
+        label = PHASE_NAMES[code] if code not in seen else None
+        seen.add(code)
+        ax.axvspan(
+            t[a] - half, t[b - 1] + half, color=PHASE_COLOURS[code], alpha=alpha, lw=0, label=label
+        )
+
+
+def plot_gaw(sim, ax=None, title: str | None = None, label: str = "model", unit: str = "px"):
+    """Plot a simulated GAW (a `Simulation`) with its phases shaded; returns the Axes."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3))
+    shade_phases(ax, sim.time, sim.phase)
+    ax.plot(np.asarray(sim.time) * 1e3, np.asarray(sim.area), color="#c1121f", lw=1.4, label=label)
+    ax.axhline(0.0, color="#1d3557", lw=0.8)
+    ax.set_xlabel("time (ms)")
+    ax.set_ylabel(f"glottal area ({unit})")
+    if title:
+        ax.set_title(title)
+    ax.legend(loc="upper right", fontsize=7, ncol=5, frameon=False)
+    ax.margins(x=0)
+    return ax
