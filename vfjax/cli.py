@@ -31,6 +31,9 @@ def _describe(sim, fps):
 
 def cmd_run(args) -> int:
     """The paper's four subjects: GAWs (CSV + JSON sidecar), figures and a short report."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, no window
     import matplotlib.pyplot as plt
 
     from .io import write_simulation

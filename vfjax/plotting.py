@@ -1,13 +1,9 @@
 """Figures: GAWs with the model's phases shaded."""
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg", force=False)
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from .phases import PHASE_COLOURS, PHASE_NAMES  # noqa: E402
+from .phases import PHASE_COLOURS, PHASE_NAMES
 
 
 def shade_phases(ax, time_s, phase, alpha: float = 0.35):
