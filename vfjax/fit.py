@@ -1,0 +1,607 @@
+"""Fitting the model to a measured GAW: a batched particle swarm, then Levenberg-Marquardt.
+
+Protocol (the paper gives none). A recording starts at an arbitrary point of the glottal
+cycle, while the model starts from rest at contact. vfjax simulates ``warmup`` seconds to reach
+the limit cycle and then samples the recording's frames from ``warmup + time_shift``, where
+the time shift is a fitted, differentiable parameter in [0, ~1.25 T0] (T0: the recording's
+cycle length, from its f0). Parameters are searched in O(1) coordinates: log(p / p_ref) for
+each fitted physical parameter, and time_shift / T0 for the shift.
+
+Stage 1, global: particle swarm optimisation (PSO). The whole swarm is simulated as one
+vmapped call per iteration. The scale S enters the GAW linearly, so for each particle it is
+solved in closed form (variable projection): the swarm searches K, C_f, ... and the shift.
+Stage 2, local: `optimistix.LevenbergMarquardt` on the residual vector (forward-mode Jacobian
+through the simulator, whose event times carry their derivatives), S included. The best point
+seen is kept, so the polish never returns anything worse than the swarm's best.
+
+Cost: NMSE = sum((A_exp - A_sim)²) / sum(A_exp²) (`vfjax.cost`). The simulated GAW is clipped at
+zero area before it is compared: a camera sees no negative area.
+"""
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .descriptors import fundamental_frequency
+from .integrator import DEFAULT_SUBSTEPS, simulate
+from .model import VocalFoldModel
+from .pso import SwarmSettings, init_swarm, run_chunk
+from .recording import Recording
+
+#: Default search box per parameter, as factors of the starting value.
+DEFAULT_FACTORS = {"K": (0.25, 4.0), "C_f": (0.05, 20.0), "t_c": (0.25, 4.0), "P_s": (0.5, 2.0),
+                   "S": (0.1, 10.0)}  # fmt: skip
+_SHIFT_GRID = 0.005  # s
+_DEFAULT_SWARM = SwarmSettings()
+_AREA_TO_PX_SCALE = {"mm2": 1.0, "cm2": 0.01}  # S that turns model mm² per mm² into the unit
+
+
+@dataclasses.dataclass
+class FitResult:
+    """The outcome of `fit`.
+
+    Attributes:
+        params: fitted parameter values by name, in the model's units (``units``).
+        units: unit of each parameter.
+        time_shift: fitted sampling delay after the warm-up (s).
+        nmse: normalised squared error of the fitted GAW.
+        pso_trace: best NMSE after each PSO iteration (index 0: the initial swarm).
+        lm_trace: best NMSE after each Levenberg-Marquardt step (index 0: the start).
+        timings: wall time of each stage (s), compilation included, and the compile time.
+        n_simulations: simulated recordings (a Jacobian counts as one per column).
+        optimistix_result: the polish's result code ("successful", "max_steps_reached", ...).
+        settings: the fit's settings (fitted names, bounds, swarm, warm-up, ...).
+        model: the fitted model.
+        recording_name: the recording's name.
+    """
+
+    params: dict
+    units: dict
+    time_shift: float
+    nmse: float
+    pso_trace: list
+    lm_trace: list
+    timings: dict
+    n_simulations: int
+    optimistix_result: str
+    settings: dict
+    model: VocalFoldModel | None = None
+    recording_name: str = ""
+
+    def simulate(self, recording: Recording):
+        """The fitted model's `Simulation` on the recording's frames."""
+        return simulate(self.model, recording.fps, recording.n_frames,
+                        substeps=self.settings["substeps"], t_start=self.settings["warmup"],
+                        time_shift=self.time_shift,
+                        max_time_shift=self.settings["max_time_shift"])  # fmt: skip
+
+    def fitted_gaw(self, recording: Recording) -> np.ndarray:
+        """The fitted GAW on the recording's frames, clipped at zero, in the recording's unit."""
+        return np.clip(np.asarray(self.simulate(recording).area), 0.0, None)
+
+    def to_json(self, path) -> None:
+        """Save as JSON (schema: ``data_schema/fit_result.schema.json``)."""
+        import json
+        import pathlib
+
+        from .serialise import fit_result_to_dict
+
+        pathlib.Path(path).write_text(json.dumps(fit_result_to_dict(self), indent=1) + "\n")
+
+    @classmethod
+    def from_json(cls, path) -> "FitResult":
+        """Load a result saved with `to_json`."""
+        import json
+        import pathlib
+
+        from .serialise import fit_result_from_dict
+
+        return fit_result_from_dict(json.loads(pathlib.Path(path).read_text()))
+
+
+class _Problem(eqx.Module):
+    """Everything the cost and residual functions need, as a pytree (vmappable over data)."""
+
+    model: VocalFoldModel
+    measured: jax.Array  # (frames,)
+    reference: jax.Array  # (n_params,) starting values of the non-S fitted parameters
+    s_reference: jax.Array  # () starting (or fixed) S
+    period: jax.Array  # () T0 estimate (s)
+    names: tuple = eqx.field(static=True)  # fitted physical parameters, S excluded
+    fit_s: bool = eqx.field(static=True)
+    fps: float = eqx.field(static=True)
+    n_frames: int = eqx.field(static=True)
+    warmup: float = eqx.field(static=True)
+    max_time_shift: float = eqx.field(static=True)
+    substeps: int = eqx.field(static=True)
+
+    def model_at(self, z, log_s=None):
+        values = {n: self.reference[i] * jnp.exp(z[i]) for i, n in enumerate(self.names)}
+        s = self.s_reference if log_s is None else self.s_reference * jnp.exp(log_s)
+        return self.model.set(**values, S=s)
+
+    def shift(self, z):
+        return z[len(self.names)] * self.period
+
+    def shape(self, z):
+        """Simulated GAW at S = 1 (clipped at 0) and whether the simulation is valid."""
+        sim = simulate(self.model_at(z, log_s=None).set(S=1.0), self.fps, self.n_frames,
+                       substeps=self.substeps, t_start=self.warmup, time_shift=self.shift(z),
+                       max_time_shift=self.max_time_shift)  # fmt: skip
+        ok = sim.complete & ~sim.diverged
+        g = jnp.where(ok, sim.area, 0.0)
+        return jnp.maximum(g, 0.0), ok
+
+    def projected_scale(self, g):
+        """The S minimising the squared error for the shape g (closed form), kept positive."""
+        if not self.fit_s:
+            return self.s_reference
+        s = jnp.sum(self.measured * g) / jnp.maximum(jnp.sum(g * g), 1e-300)
+        return jnp.clip(s, 1e-3 * self.s_reference, 1e3 * self.s_reference)
+
+    def swarm_cost(self, z):
+        g, ok = self.shape(z)
+        s = self.projected_scale(g)
+        cost = jnp.sum((self.measured - s * g) ** 2) / jnp.sum(self.measured**2)
+        return jnp.where(ok, cost, jnp.inf)
+
+    def residual(self, y):
+        """Residuals whose sum of squares is the NMSE; y = (z..., log S) or z."""
+        z = y[: len(self.names) + 1]
+        s = self.s_reference * jnp.exp(y[-1]) if self.fit_s else self.s_reference
+        g, ok = self.shape(z)
+        r = (s * g - self.measured) / jnp.sqrt(jnp.sum(self.measured**2))
+        # outside the valid range: a large, finite residual (LM rejects the step)
+        return jnp.where(ok, r, 1.0)
+
+    def start_y(self, z):
+        """Swarm point -> LM point: append log(S / S_ref) for the projected S."""
+        if not self.fit_s:
+            return z
+        g, _ = self.shape(z)
+        return jnp.concatenate([z, jnp.log(self.projected_scale(g) / self.s_reference)[None]])
+
+
+def estimate_closure_duration(recording: Recording, level: float = 0.02) -> float | None:
+    """Mean length (s) of the runs of frames whose area is at most ``level`` x the peak;
+    None when the glottis never closes. The paper takes t_c from the measured GAW this way."""
+    closed = recording.area <= level * recording.area.max()
+    if not closed.any() or closed.all():
+        return None
+    edges = np.diff(np.r_[0, closed.astype(int), 0])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    inner = [(a, b) for a, b in zip(starts, ends) if a > 0 and b < closed.size]
+    runs = [b - a for a, b in (inner or list(zip(starts, ends)))]
+    return float(np.mean(runs)) / recording.fps
+
+
+def _bounds(names, model, bounds):
+    params = model.params()
+    lo, hi = [], []
+    for n in names:
+        ref = float(params[n])
+        if bounds and n in bounds:
+            a, b = bounds[n]
+            if not (0 < a < ref < b):
+                raise ValueError(f"bounds for {n} must satisfy 0 < low < start ({ref}) < high, "
+                                 f"got {bounds[n]}")  # fmt: skip
+            lo.append(math.log(a / ref))
+            hi.append(math.log(b / ref))
+        else:
+            fa, fb = DEFAULT_FACTORS.get(n, (0.2, 5.0))
+            lo.append(math.log(fa))
+            hi.append(math.log(fb))
+    return np.array(lo), np.array(hi)
+
+
+def _prepare(model, recording, params, warmup, substeps, bounds):
+    if not isinstance(recording, Recording):
+        raise TypeError(f"recording must be a vfjax.Recording, got {type(recording).__name__}")
+    params = tuple(params)
+    units = model.parameter_units()
+    unknown = [n for n in params if n not in units]
+    if unknown:
+        raise ValueError(f"cannot fit {unknown}: the model's parameters are {sorted(units)}")
+    if len(set(params)) != len(params) or not params:
+        raise ValueError(f"params must be distinct parameter names, got {params}")
+    if float(np.sum(recording.area**2)) == 0.0:
+        raise ValueError("the recording's area is zero everywhere: there is nothing to fit")
+    f0 = fundamental_frequency(recording.area, recording.fps)
+    if not np.isfinite(f0):
+        raise ValueError(
+            f"{recording.name}: fewer than two glottal cycles found in {recording.n_frames} "
+            "frames; a fit needs at least one full cycle"
+        )
+    period = 1.0 / f0
+    fit_s = "S" in params
+    if recording.unit != "px":
+        if fit_s:
+            raise ValueError(f"S converts model mm² to pixels; the recording is in "
+                             f"{recording.unit}, so S is fixed and cannot be fitted")  # fmt: skip
+        model = model.set(S=_AREA_TO_PX_SCALE[recording.unit])
+    names = tuple(n for n in params if n != "S")
+    lo, hi = _bounds(names, model, bounds)
+    s_lo, s_hi = _bounds(("S",), model, bounds) if fit_s else (None, None)
+    # static (it sizes the integration): rounded up to 5 ms so that recordings of similar
+    # f0 share one compiled fit
+    max_shift = math.ceil(1.25 * period / _SHIFT_GRID) * _SHIFT_GRID
+    problem = _Problem(
+        model=model,
+        measured=jnp.asarray(recording.area),
+        reference=jnp.asarray([float(model.params()[n]) for n in names]),
+        s_reference=jnp.asarray(float(model.params()["S"])),
+        period=jnp.asarray(period),
+        names=names,
+        fit_s=fit_s,
+        fps=recording.fps,
+        n_frames=recording.n_frames,
+        warmup=float(warmup),
+        max_time_shift=float(max_shift),
+        substeps=substeps,
+    )
+    lower = jnp.asarray(np.r_[lo, 0.0])
+    upper = jnp.asarray(np.r_[hi, max_shift / period])
+    return problem, lower, upper, (s_lo, s_hi)
+
+
+@eqx.filter_jit
+def _swarm_init(problem, lower, upper, n, key, start):
+    cost = jax.vmap(problem.swarm_cost)
+    return init_swarm(cost, lower, upper, n, key, start)
+
+
+@eqx.filter_jit
+def _swarm_chunk(problem, lower, upper, settings, state, n):
+    return run_chunk(jax.vmap(problem.swarm_cost), lower, upper, settings, state, n)
+
+
+def _lm_solver(rtol, atol):
+    return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+
+
+def _lm_fn(y, problem):
+    return problem.residual(y), None
+
+
+@eqx.filter_jit
+def _lm_init(problem, y, rtol, atol):
+    solver = _lm_solver(rtol, atol)
+    f_struct = jax.eval_shape(problem.residual, y)
+    return solver.init(_lm_fn, y, problem, {"jac": "fwd"}, f_struct, None, frozenset())
+
+
+@eqx.filter_jit
+def _lm_step(problem, y, state, rtol, atol):
+    solver = _lm_solver(rtol, atol)
+    y, state, _ = solver.step(_lm_fn, y, problem, {"jac": "fwd"}, state, frozenset())
+    done, result = solver.terminate(_lm_fn, y, problem, {"jac": "fwd"}, state, frozenset())
+    r = problem.residual(y)
+    return y, state, done, result, jnp.sum(r * r)
+
+
+def _unpack(problem, y) -> tuple[VocalFoldModel, float]:
+    z = y[: len(problem.names) + 1]
+    log_s = y[-1] if problem.fit_s else None
+    model = problem.model_at(z, log_s)
+    return model, float(problem.shift(z))
+
+
+def fit(
+    model: VocalFoldModel,
+    recording: Recording,
+    params: Sequence[str] = ("S", "K", "C_f"),
+    *,
+    bounds: dict | None = None,
+    swarm_size: int = 48,
+    iterations: int = 60,
+    chunk: int = 10,
+    key=None,
+    polish: bool = True,
+    lm_steps: int = 40,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+    warmup: float = 0.02,
+    substeps: int = DEFAULT_SUBSTEPS,
+    settings: SwarmSettings = _DEFAULT_SWARM,
+    progress: bool | None = None,
+    callback: Callable[[int, float], None] | None = None,
+) -> FitResult:
+    """Fit ``params`` of ``model`` to ``recording``: batched PSO, then Levenberg-Marquardt.
+
+    Arguments:
+        model: the model with every non-fitted parameter set (e.g. `vfjax.preset`, or
+            `initial_model(recording)`); its values of the fitted ones are the search centre.
+        recording: the measured GAW (`vfjax.Recording`).
+        params: names of the parameters to fit (the paper: S, K, C_f; t_c and P_s optional).
+        bounds: ``{name: (low, high)}`` in the parameter's unit; defaults: `DEFAULT_FACTORS`
+            times the starting value.
+        swarm_size: particles (one vmapped simulation per iteration evaluates them all).
+        iterations: PSO iterations (0: LM from the model's values).
+        chunk: PSO iterations per jitted chunk (between chunks: progress bar, callback).
+        key: `jax.random` key; the same key gives the same result. Default: key(0).
+        polish: run the Levenberg-Marquardt polish.
+        lm_steps: maximum LM steps.
+        rtol, atol: LM tolerances (on the O(1) coordinates).
+        warmup: simulated time before sampling starts (s).
+        substeps: RK4 steps per frame.
+        settings: PSO constants and boundary handling.
+        progress: show a progress bar (default: when there are more than 20 iterations).
+        callback: called as ``callback(iteration, best_nmse)`` after each PSO chunk and each
+            LM step (iteration counts PSO iterations, then continues through the LM steps).
+    """
+    t_all = time.perf_counter()
+    key = jax.random.key(0) if key is None else key
+    problem, lower, upper, _ = _prepare(model, recording, params, warmup, substeps, bounds)
+    n_dim = lower.shape[0]
+    start = jnp.zeros(n_dim).at[-1].set(0.5 * upper[-1])
+    show = progress if progress is not None else iterations > 20
+    bar = None
+    if show:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=iterations + (lm_steps if polish else 0), desc=f"fit {recording.name}",
+                   leave=False)  # fmt: skip
+
+    # Stage 1: the swarm.
+    t0 = time.perf_counter()
+    state = _swarm_init(problem, lower, upper, swarm_size, key, start)
+    jax.block_until_ready(state)
+    t_first = time.perf_counter() - t0
+    pso_trace = [float(state.global_cost)]
+    done_iters = 0
+    compile_s = t_first
+    while done_iters < iterations:
+        n = min(chunk, iterations - done_iters)
+        tc = time.perf_counter()
+        state, costs = _swarm_chunk(problem, lower, upper, settings, state, n)
+        costs = np.asarray(costs)
+        if done_iters == 0:
+            compile_s += time.perf_counter() - tc  # first chunk includes its compilation
+        pso_trace += costs.tolist()
+        done_iters += n
+        if bar is not None:
+            bar.update(n)
+            bar.set_postfix(nmse=f"{pso_trace[-1]:.3g}")
+        if callback is not None:
+            callback(done_iters, pso_trace[-1])
+    t_pso = time.perf_counter() - t0
+    n_sims = swarm_size * (1 + iterations)
+    best_z = state.global_position
+
+    # Stage 2: the polish.
+    t1 = time.perf_counter()
+    y = problem.start_y(best_z)
+    best_y = y
+    r = problem.residual(y)
+    best_cost = float(jnp.sum(r * r))
+    lm_trace = [best_cost]
+    result_name = "not run"
+    if polish:
+        lm_state = _lm_init(problem, y, rtol, atol)
+        result_name = "max_steps_reached"
+        for i in range(lm_steps):
+            y, lm_state, done, result, cost = _lm_step(problem, y, lm_state, rtol, atol)
+            cost = float(cost)
+            n_sims += 1 + y.shape[0]
+            if np.isfinite(cost) and cost < best_cost:
+                best_cost, best_y = cost, y
+            lm_trace.append(best_cost)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(nmse=f"{best_cost:.3g}")
+            if callback is not None:
+                callback(iterations + i + 1, best_cost)
+            if bool(done):
+                result_name = _result_name(result)
+                break
+    t_lm = time.perf_counter() - t1
+    if bar is not None:
+        bar.close()
+
+    fitted, shift = _unpack(problem, best_y)
+    units = fitted.parameter_units()
+    values = fitted.params()
+    return FitResult(
+        params={n: float(values[n]) for n in params},
+        units={n: units[n] for n in params},
+        time_shift=shift,
+        nmse=best_cost,
+        pso_trace=pso_trace,
+        lm_trace=lm_trace,
+        timings={
+            "pso_s": t_pso,
+            "lm_s": t_lm,
+            "total_s": time.perf_counter() - t_all,
+            "first_swarm_s": t_first,
+            "compile_s": compile_s,
+        },  # fmt: skip
+        n_simulations=int(n_sims),
+        optimistix_result=result_name,
+        settings={
+            "params": list(params),
+            "bounds": {
+                n: [
+                    float(math.exp(a)) * float(model.params()[n]),
+                    float(math.exp(b)) * float(model.params()[n]),
+                ]
+                for n, a, b in zip(problem.names, np.asarray(lower), np.asarray(upper))
+            },
+            "swarm_size": swarm_size,
+            "iterations": iterations,
+            "lm_steps": lm_steps,
+            "warmup": problem.warmup,
+            "max_time_shift": problem.max_time_shift,
+            "substeps": substeps,
+            "fps": recording.fps,
+            "n_frames": recording.n_frames,
+            "pso": settings._asdict(),
+        },  # fmt: skip
+        model=fitted,
+        recording_name=recording.name,
+    )
+
+
+def _result_name(result, index=None) -> str:
+    """optimistix's result code as a plain string (``index``: element of a batched code)."""
+    for name in ("successful", "max_steps_reached", "nonlinear_max_steps_reached",
+                 "nonlinear_divergence", "singular"):  # fmt: skip
+        member = getattr(optx.RESULTS, name, None)
+        if member is None:
+            continue
+        same = np.asarray(result == member)
+        if bool(same if index is None else same[index]):
+            return name
+    return "unknown"
+
+
+def fit_many(
+    model: VocalFoldModel,
+    recordings: Sequence[Recording],
+    params: Sequence[str] = ("S", "K", "C_f"),
+    *,
+    bounds: dict | None = None,
+    swarm_size: int = 48,
+    iterations: int = 60,
+    chunk: int = 10,
+    key=None,
+    polish: bool = True,
+    lm_steps: int = 40,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+    warmup: float = 0.02,
+    substeps: int = DEFAULT_SUBSTEPS,
+    settings: SwarmSettings = _DEFAULT_SWARM,
+) -> list[FitResult]:
+    """Fit many recordings of one model structure as one batched job.
+
+    Every PSO iteration simulates all particles of all recordings in one vmapped call, and the
+    LM polish steps all recordings together. The recordings must share frame rate, frame count
+    and area unit. Arguments as for `fit`; returns one `FitResult` per recording (timings are
+    those of the whole batch).
+    """
+    recordings = list(recordings)
+    if not recordings:
+        raise ValueError("recordings is empty")
+    first = recordings[0]
+    for r in recordings[1:]:
+        if (r.fps, r.n_frames, r.unit) != (first.fps, first.n_frames, first.unit):
+            raise ValueError("fit_many needs recordings of equal fps, frame count and unit; "
+                             f"{r.name} differs from {first.name}")  # fmt: skip
+    t_all = time.perf_counter()
+    key = jax.random.key(0) if key is None else key
+    prepared = [_prepare(model, r, params, warmup, substeps, bounds) for r in recordings]
+    shift = max(p.max_time_shift for p, _, _, _ in prepared)
+    problems = [dataclasses.replace(p, max_time_shift=shift) for p, _, _, _ in prepared]
+    lowers = jnp.stack([lo for _, lo, _, _ in prepared])
+    uppers = jnp.stack([hi for _, _, hi, _ in prepared])
+    # one consistent search box in the shift coordinate
+    uppers = uppers.at[:, -1].set(jnp.asarray([shift / float(p.period) for p in problems]))
+    batch = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
+    n_dim = lowers.shape[1]
+    starts = jnp.zeros((len(problems), n_dim)).at[:, -1].set(0.5 * uppers[:, -1])
+    keys = jax.random.split(key, len(problems))
+
+    t0 = time.perf_counter()
+    state = _many_init(batch, lowers, uppers, keys, starts, swarm_size)
+    traces = [np.asarray(state.global_cost)[:, None]]
+    done = 0
+    while done < iterations:
+        n = min(chunk, iterations - done)
+        state, costs = _many_chunk(batch, lowers, uppers, settings, state, n)
+        traces.append(np.asarray(costs))
+        done += n
+    t_pso = time.perf_counter() - t0
+    pso_traces = np.concatenate(traces, axis=1)
+
+    t1 = time.perf_counter()
+    y, cost0 = _many_start(batch, state.global_position)
+    best_y, best_cost = y, np.asarray(cost0)
+    lm_traces = [best_cost.copy()]
+    results = ["not run"] * len(problems)
+    n_lm = 0
+    if polish:
+        lm_state = _many_lm_init(batch, y, rtol, atol)
+        finished = np.zeros(len(problems), bool)
+        for _ in range(lm_steps):
+            y, lm_state, done_flags, res, cost = _many_lm_step(batch, y, lm_state, rtol, atol)
+            n_lm += 1
+            cost = np.asarray(cost)
+            better = np.isfinite(cost) & (cost < best_cost) & ~finished
+            best_cost = np.where(better, cost, best_cost)
+            best_y = jnp.where(jnp.asarray(better)[:, None], y, best_y)
+            lm_traces.append(best_cost.copy())
+            newly = np.asarray(done_flags) & ~finished
+            for i in np.flatnonzero(newly):
+                results[i] = _result_name(res, i)
+            finished |= np.asarray(done_flags)
+            if finished.all():
+                break
+        results = [r if r != "not run" else "max_steps_reached" for r in results]
+    t_lm = time.perf_counter() - t1
+    lm_traces = np.stack(lm_traces, axis=1)
+
+    out = []
+    for i, (rec, problem) in enumerate(zip(recordings, problems)):
+        fitted, shift_i = _unpack(problem, best_y[i])
+        values, units = fitted.params(), fitted.parameter_units()
+        out.append(FitResult(
+            params={n: float(values[n]) for n in params},
+            units={n: units[n] for n in params},
+            time_shift=shift_i,
+            nmse=float(best_cost[i]),
+            pso_trace=pso_traces[i].tolist(),
+            lm_trace=lm_traces[i].tolist(),
+            timings={"pso_s": t_pso, "lm_s": t_lm, "total_s": time.perf_counter() - t_all,
+                     "batch_size": len(recordings)},
+            n_simulations=int(swarm_size * (1 + iterations) + n_lm * (1 + best_y.shape[1])),
+            optimistix_result=results[i],
+            settings={"params": list(params), "swarm_size": swarm_size,
+                      "iterations": iterations, "lm_steps": lm_steps, "warmup": problem.warmup,
+                      "max_time_shift": problem.max_time_shift, "substeps": substeps,
+                      "fps": rec.fps, "n_frames": rec.n_frames, "pso": settings._asdict()},
+            model=fitted,
+            recording_name=rec.name,
+        ))  # fmt: skip
+    return out
+
+
+@eqx.filter_jit
+def _many_init(batch, lowers, uppers, keys, starts, swarm_size):
+    def one(p, lo, hi, k, s0):
+        return init_swarm(jax.vmap(p.swarm_cost), lo, hi, swarm_size, k, s0)
+
+    return jax.vmap(one)(batch, lowers, uppers, keys, starts)
+
+
+@eqx.filter_jit
+def _many_chunk(batch, lowers, uppers, settings, state, n):
+    def one(p, lo, hi, st):
+        return run_chunk(jax.vmap(p.swarm_cost), lo, hi, settings, st, n)
+
+    return jax.vmap(one)(batch, lowers, uppers, state)
+
+
+@eqx.filter_jit
+def _many_start(batch, z):
+    def one(p, z):
+        y = p.start_y(z)
+        return y, jnp.sum(p.residual(y) ** 2)
+
+    return jax.vmap(one)(batch, z)
+
+
+@eqx.filter_jit
+def _many_lm_init(batch, y, rtol, atol):
+    return eqx.filter_vmap(lambda p, y: _lm_init(p, y, rtol, atol))(batch, y)
+
+
+@eqx.filter_jit
+def _many_lm_step(batch, y, state, rtol, atol):
+    return eqx.filter_vmap(lambda p, y, s: _lm_step(p, y, s, rtol, atol))(batch, y, state)

@@ -1,0 +1,116 @@
+"""A measured (or simulated) glottal area waveform with its frame rate and unit."""
+
+import csv
+import dataclasses
+import json
+import math
+import pathlib
+import warnings
+
+import numpy as np
+
+AREA_UNITS = ("px", "mm2", "cm2")
+
+
+@dataclasses.dataclass(frozen=True)
+class Recording:
+    """A GAW: one area per frame, at a known frame rate.
+
+    Attributes:
+        area: glottal area per frame, in ``unit``.
+        fps: frame rate (Hz).
+        unit: "px", "mm2" or "cm2".
+        metadata: subject and source information (sex, vocal_fold_length_cm, ...).
+        name: a short label (e.g. the file stem).
+    """
+
+    area: np.ndarray
+    fps: float
+    unit: str = "px"
+    metadata: dict = dataclasses.field(default_factory=dict)
+    name: str = "recording"
+
+    def __post_init__(self):
+        area = np.asarray(self.area, dtype=float)
+        if area.ndim != 1 or area.size < 2:
+            raise ValueError(f"area must be a 1-D series of at least 2 frames, got {area.shape}")
+        if not np.all(np.isfinite(area)):
+            bad = np.flatnonzero(~np.isfinite(area))
+            raise ValueError(f"area has NaN or infinite values at frames {bad[:10].tolist()}")
+        if np.any(area < 0):
+            bad = np.flatnonzero(area < 0)
+            raise ValueError(f"area is negative at frames {bad[:10].tolist()}: an area is >= 0")
+        if not (isinstance(self.fps, (int, float)) and math.isfinite(self.fps) and self.fps > 0):
+            raise ValueError(f"fps (frame rate) must be a number > 0 Hz, got {self.fps!r}")
+        if self.unit not in AREA_UNITS:
+            raise ValueError(f"unit must be one of {AREA_UNITS}, got {self.unit!r}")
+        area.setflags(write=False)
+        object.__setattr__(self, "area", area)
+        object.__setattr__(self, "fps", float(self.fps))
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.area.size)
+
+    @property
+    def time(self) -> np.ndarray:
+        """Frame times (s) from 0."""
+        return np.arange(self.n_frames) / self.fps
+
+    @property
+    def duration(self) -> float:
+        """Time from the first to the last frame (s)."""
+        return (self.n_frames - 1) / self.fps
+
+    @classmethod
+    def from_simulation(cls, sim, fps: float, name: str = "simulated", **metadata):
+        """A recording of a `Simulation`'s GAW (pixels), negative areas clipped to 0."""
+        area = np.clip(np.asarray(sim.area), 0.0, None)
+        return cls(area=area, fps=fps, unit="px", metadata=metadata, name=name)
+
+
+def load_recording(path, sidecar=None) -> Recording:
+    """Load a GAW table (CSV or TSV) and its JSON sidecar.
+
+    The table needs an area column (``area_px``, ``area_mm2``, ``area_cm2`` or ``area``, the
+    unit then from the sidecar). The sidecar (default: the table's path with ``.json``) gives
+    ``fps`` and ``area_unit``; see ``data_schema/recording.schema.json``.
+    """
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no recording at {path}")
+    sidecar = pathlib.Path(sidecar) if sidecar else path.with_suffix(".json")
+    if not sidecar.exists():
+        raise FileNotFoundError(f"no sidecar {sidecar}: it must give fps and area_unit")
+    meta = json.loads(sidecar.read_text())
+    if "fps" not in meta:
+        raise ValueError(f"{sidecar}: missing 'fps' (frame rate, Hz)")
+    delimiter = "\t" if path.suffix.lower() in (".tsv", ".tab") else ","
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f, delimiter=delimiter))
+    if not rows:
+        raise ValueError(f"{path}: no rows")
+    columns = rows[0].keys()
+    unit = meta.get("area_unit")
+    for name in ("area_px", "area_mm2", "area_cm2", "area"):
+        if name in columns:
+            column = name
+            if name != "area":
+                col_unit = name.split("_", 1)[1]
+                if unit is not None and unit != col_unit:
+                    warnings.warn(
+                        f"{path}: column {name} but sidecar area_unit {unit!r}; using {col_unit!r}",
+                        stacklevel=2,
+                    )
+                unit = col_unit
+            break
+    else:
+        raise ValueError(f"{path}: no area column (area_px, area_mm2, area_cm2 or area)")
+    if unit is None:
+        raise ValueError(f"{sidecar}: missing 'area_unit' for the column 'area'")
+    try:
+        area = np.array([float(r[column]) for r in rows])
+    except ValueError as err:
+        raise ValueError(f"{path}: non-numeric value in column {column}: {err}") from None
+    fps = meta["fps"]
+    return Recording(area=area, fps=fps, unit=unit, metadata=meta, name=path.stem)
