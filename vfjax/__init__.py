@@ -10,9 +10,12 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 from . import phases, units  # noqa: E402
+from .cost import nmse  # noqa: E402
+from .fit import FitResult, fit, fit_many  # noqa: E402
 from .integrator import DEFAULT_SUBSTEPS, DenseOutput, Simulation, simulate  # noqa: E402
 from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, paper_model, preset  # noqa: E402
+from .recording import Recording, load_recording  # noqa: E402
 from .subject import Subject  # noqa: E402
 from .terms import (  # noqa: E402
     AbstractForce,
@@ -41,11 +44,17 @@ __all__ = [
     "Context",
     "DenseOutput",
     "Elastic",
+    "FitResult",
     "FlowSeparation",
+    "Recording",
     "Simulation",
     "Subject",
     "TanhDamping",
     "VocalFoldModel",
+    "fit",
+    "fit_many",
+    "load_recording",
+    "nmse",
     "paper_model",
     "phases",
     "preset",

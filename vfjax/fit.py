@@ -8,8 +8,11 @@ cycle length, from its f0). Parameters are searched in O(1) coordinates: log(p /
 each fitted physical parameter, and time_shift / T0 for the shift.
 
 Stage 1, global: particle swarm optimisation (PSO). The whole swarm is simulated as one
-vmapped call per iteration. The scale S enters the GAW linearly, so for each particle it is
-solved in closed form (variable projection): the swarm searches K, C_f, ... and the shift.
+vmapped call per iteration. Two parameters are profiled out of the swarm's search: the scale
+S enters the GAW linearly, so for each particle it is solved in closed form (variable
+projection); and the time shift, periodic and so highly multimodal, is chosen per particle on
+a grid of 48 shifts read from the same simulation's dense output. The swarm searches only the
+physical parameters (K, C_f, ...).
 Stage 2, local: `optimistix.LevenbergMarquardt` on the residual vector (forward-mode Jacobian
 through the simulator, whose event times carry their derivatives), S included. The best point
 seen is kept, so the polish never returns anything worse than the swarm's best.
@@ -20,6 +23,7 @@ zero area before it is compared: a camera sees no negative area.
 
 import dataclasses
 import math
+import sys
 import time
 from collections.abc import Callable, Sequence
 
@@ -39,6 +43,7 @@ from .recording import Recording
 DEFAULT_FACTORS = {"K": (0.25, 4.0), "C_f": (0.05, 20.0), "t_c": (0.25, 4.0), "P_s": (0.5, 2.0),
                    "S": (0.1, 10.0)}  # fmt: skip
 _SHIFT_GRID = 0.005  # s
+_SHIFT_GRID_POINTS = 48  # shifts tried per particle (about one frame apart)
 _DEFAULT_SWARM = SwarmSettings()
 _AREA_TO_PX_SCALE = {"mm2": 1.0, "cm2": 0.01}  # S that turns model mm² per mm² into the unit
 
@@ -114,6 +119,7 @@ class _Problem(eqx.Module):
     reference: jax.Array  # (n_params,) starting values of the non-S fitted parameters
     s_reference: jax.Array  # () starting (or fixed) S
     period: jax.Array  # () T0 estimate (s)
+    s_bounds: jax.Array  # (2,) search bounds of S (px/mm²)
     names: tuple = eqx.field(static=True)  # fitted physical parameters, S excluded
     fit_s: bool = eqx.field(static=True)
     fps: float = eqx.field(static=True)
@@ -144,13 +150,35 @@ class _Problem(eqx.Module):
         if not self.fit_s:
             return self.s_reference
         s = jnp.sum(self.measured * g) / jnp.maximum(jnp.sum(g * g), 1e-300)
-        return jnp.clip(s, 1e-3 * self.s_reference, 1e3 * self.s_reference)
+        return jnp.clip(s, self.s_bounds[0], self.s_bounds[1])
 
-    def swarm_cost(self, z):
-        g, ok = self.shape(z)
-        s = self.projected_scale(g)
-        cost = jnp.sum((self.measured - s * g) ** 2) / jnp.sum(self.measured**2)
-        return jnp.where(ok, cost, jnp.inf)
+    def profile(self, z_phys):
+        """Best cost over a grid of time shifts, S projected for each; returns (cost, shift
+        as a fraction of T0). One simulation serves every shift: the frames are read from
+        its dense output."""
+        model = self.model_at(jnp.concatenate([z_phys, jnp.zeros(1)])).set(S=1.0)
+        sim = simulate(model, self.fps, self.n_frames, substeps=self.substeps,
+                       t_start=self.warmup, max_time_shift=self.max_time_shift)  # fmt: skip
+        ok = sim.complete & ~sim.diverged
+        shifts = jnp.linspace(0.0, self.max_time_shift, _SHIFT_GRID_POINTS)
+
+        def cost_at(shift):
+            times = sim.time + shift
+            g = model.observe(times, sim.dense.displacement(times), sim.dense.displacement)
+            g = jnp.maximum(jnp.where(ok, g, 0.0), 0.0)
+            s = self.projected_scale(g)
+            return jnp.sum((self.measured - s * g) ** 2) / jnp.sum(self.measured**2)
+
+        costs = jax.vmap(cost_at)(shifts)
+        i = jnp.argmin(costs)
+        return jnp.where(ok, costs[i], jnp.inf), shifts[i] / self.period
+
+    def swarm_cost(self, z_phys):
+        return self.profile(z_phys)[0]
+
+    def with_best_shift(self, z_phys):
+        """Swarm point (physical parameters) -> full point with its best grid shift."""
+        return jnp.concatenate([z_phys, self.profile(z_phys)[1][None]])
 
     def residual(self, y):
         """Residuals whose sum of squares is the NMSE; y = (z..., log S) or z."""
@@ -180,6 +208,24 @@ def estimate_closure_duration(recording: Recording, level: float = 0.02) -> floa
     inner = [(a, b) for a, b in zip(starts, ends) if a > 0 and b < closed.size]
     runs = [b - a for a, b in (inner or list(zip(starts, ends)))]
     return float(np.mean(runs)) / recording.fps
+
+
+def initial_model(recording: Recording, template: str | None = None) -> VocalFoldModel:
+    """A starting model for ``recording``: the paper's preset for its sex (N1 male, N3
+    female, or ``template``), with the sidecar's fold mass and length if given, and the closure
+    duration t_c measured on the GAW (`estimate_closure_duration`), as the paper did."""
+    from .presets import preset
+
+    sex = recording.metadata.get("sex")
+    model = preset(template or ("N3" if sex == "female" else "N1"))
+    if "vocal_fold_length_cm" in recording.metadata:
+        model = model.set(l=recording.metadata["vocal_fold_length_cm"])
+    if "vocal_fold_mass_g" in recording.metadata:
+        model = model.set(M=recording.metadata["vocal_fold_mass_g"])
+    t_c = estimate_closure_duration(recording)
+    if t_c is not None and model.closure_duration is not None:
+        model = model.set(t_c=t_c)
+    return model
 
 
 def _bounds(names, model, bounds):
@@ -238,6 +284,9 @@ def _prepare(model, recording, params, warmup, substeps, bounds):
         reference=jnp.asarray([float(model.params()[n]) for n in names]),
         s_reference=jnp.asarray(float(model.params()["S"])),
         period=jnp.asarray(period),
+        s_bounds=jnp.asarray(np.exp(np.r_[s_lo, s_hi]) * float(model.params()["S"]))
+        if fit_s
+        else jnp.asarray([0.0, jnp.inf]),
         names=names,
         fit_s=fit_s,
         fps=recording.fps,
@@ -246,9 +295,12 @@ def _prepare(model, recording, params, warmup, substeps, bounds):
         max_time_shift=float(max_shift),
         substeps=substeps,
     )
-    lower = jnp.asarray(np.r_[lo, 0.0])
-    upper = jnp.asarray(np.r_[hi, max_shift / period])
-    return problem, lower, upper, (s_lo, s_hi)
+    return problem, jnp.asarray(lo), jnp.asarray(hi), (s_lo, s_hi)
+
+
+@eqx.filter_jit
+def _with_best_shift(problem, z_phys):
+    return problem.with_best_shift(z_phys)
 
 
 @eqx.filter_jit
@@ -321,7 +373,8 @@ def fit(
         recording: the measured GAW (`vfjax.Recording`).
         params: names of the parameters to fit (the paper: S, K, C_f; t_c and P_s optional).
         bounds: ``{name: (low, high)}`` in the parameter's unit; defaults: `DEFAULT_FACTORS`
-            times the starting value.
+            times the starting value. They bound the swarm's search (and the projected S);
+            the LM polish is a local, unconstrained refinement from the swarm's best.
         swarm_size: particles (one vmapped simulation per iteration evaluates them all).
         iterations: PSO iterations (0: LM from the model's values).
         chunk: PSO iterations per jitted chunk (between chunks: progress bar, callback).
@@ -332,16 +385,15 @@ def fit(
         warmup: simulated time before sampling starts (s).
         substeps: RK4 steps per frame.
         settings: PSO constants and boundary handling.
-        progress: show a progress bar (default: when there are more than 20 iterations).
+        progress: show a progress bar (default: on a terminal, for more than 20 iterations).
         callback: called as ``callback(iteration, best_nmse)`` after each PSO chunk and each
             LM step (iteration counts PSO iterations, then continues through the LM steps).
     """
     t_all = time.perf_counter()
     key = jax.random.key(0) if key is None else key
     problem, lower, upper, _ = _prepare(model, recording, params, warmup, substeps, bounds)
-    n_dim = lower.shape[0]
-    start = jnp.zeros(n_dim).at[-1].set(0.5 * upper[-1])
-    show = progress if progress is not None else iterations > 20
+    start = jnp.zeros(lower.shape[0])
+    show = progress if progress is not None else (iterations > 20 and sys.stderr.isatty())
     bar = None
     if show:
         from tqdm.auto import tqdm
@@ -373,7 +425,7 @@ def fit(
             callback(done_iters, pso_trace[-1])
     t_pso = time.perf_counter() - t0
     n_sims = swarm_size * (1 + iterations)
-    best_z = state.global_position
+    best_z = _with_best_shift(problem, state.global_position)
 
     # Stage 2: the polish.
     t1 = time.perf_counter()
@@ -501,11 +553,8 @@ def fit_many(
     problems = [dataclasses.replace(p, max_time_shift=shift) for p, _, _, _ in prepared]
     lowers = jnp.stack([lo for _, lo, _, _ in prepared])
     uppers = jnp.stack([hi for _, _, hi, _ in prepared])
-    # one consistent search box in the shift coordinate
-    uppers = uppers.at[:, -1].set(jnp.asarray([shift / float(p.period) for p in problems]))
     batch = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
-    n_dim = lowers.shape[1]
-    starts = jnp.zeros((len(problems), n_dim)).at[:, -1].set(0.5 * uppers[:, -1])
+    starts = jnp.zeros(lowers.shape)
     keys = jax.random.split(key, len(problems))
 
     t0 = time.perf_counter()
@@ -591,7 +640,7 @@ def _many_chunk(batch, lowers, uppers, settings, state, n):
 @eqx.filter_jit
 def _many_start(batch, z):
     def one(p, z):
-        y = p.start_y(z)
+        y = p.start_y(p.with_best_shift(z))
         return y, jnp.sum(p.residual(y) ** 2)
 
     return jax.vmap(one)(batch, z)

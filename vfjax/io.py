@@ -28,3 +28,16 @@ def write_simulation(sim, path, *, metadata: dict | None = None) -> pathlib.Path
     sidecar.update(metadata or {})
     path.with_suffix(".json").write_text(json.dumps(sidecar, indent=1) + "\n")
     return path
+
+
+def write_recording(recording, path) -> pathlib.Path:
+    """Write a `Recording` as ``path`` (CSV: frame, time_s, area_<unit>) and its sidecar."""
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w") as f:
+        f.write(f"frame,time_s,area_{recording.unit}\n")
+        for i, (t, a) in enumerate(zip(recording.time, recording.area)):
+            f.write(f"{i},{t:.8f},{a:.6f}\n")
+    sidecar = {"fps": recording.fps, "area_unit": recording.unit, **recording.metadata}
+    path.with_suffix(".json").write_text(json.dumps(sidecar, indent=1) + "\n")
+    return path

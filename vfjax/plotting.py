@@ -45,3 +45,40 @@ def plot_gaw(sim, ax=None, title: str | None = None, label: str = "model", unit:
     ax.legend(loc="upper right", fontsize=7, ncol=5, frameon=False)
     ax.margins(x=0)
     return ax
+
+
+def plot_convergence(result, ax=None):
+    """The fit's convergence trace (like the paper's Fig. r1): best NMSE per PSO iteration,
+    then per Levenberg-Marquardt step, on log axes."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6, 3.5))
+    pso = np.asarray(result.pso_trace)
+    lm = np.asarray(result.lm_trace)
+    it = np.arange(len(pso)) + 1
+    ax.loglog(it, pso, color="#457b9d", label="particle swarm")
+    if len(lm) > 1:
+        ax.loglog(len(pso) + np.arange(len(lm)), np.maximum(lm, 1e-16), color="#e63946",
+                  label="Levenberg-Marquardt")  # fmt: skip
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("best NMSE")
+    ax.legend(frameon=False, fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    return ax
+
+
+def plot_overlay(recording, result, ax=None, title: str | None = None):
+    """Measured and fitted GAW, the model's phases shaded."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3))
+    sim = result.simulate(recording)
+    t = recording.time
+    shade_phases(ax, t, sim.phase)
+    ax.plot(t * 1e3, recording.area, color="#2a9d8f", lw=1.4, label="measured")
+    ax.plot(t * 1e3, np.clip(np.asarray(sim.area), 0, None), color="#c1121f", lw=1.2,
+            label=f"model (NMSE {result.nmse:.2%})")  # fmt: skip
+    ax.set_xlabel("time (ms)")
+    ax.set_ylabel(f"glottal area ({recording.unit})")
+    ax.set_title(title or recording.name)
+    ax.legend(loc="upper right", fontsize=7, ncol=6, frameon=False)
+    ax.margins(x=0)
+    return ax

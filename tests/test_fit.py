@@ -1,0 +1,153 @@
+"""Fitting against truths the fit did not make: known parameters, and the shared synthetic case."""
+
+import json
+
+import jax
+import jsonschema
+import numpy as np
+import pytest
+
+import vfjax
+from vfjax.fit import fit, fit_many
+from vfjax.recording import Recording, load_recording
+
+FPS = 4000.0
+
+
+def _recording(model, t_start, noise_px=0.0, seed=0, name="sim"):
+    sim = vfjax.simulate(model, FPS, 201, t_start=t_start)
+    area = np.clip(np.asarray(sim.area), 0, None)
+    if noise_px:
+        area = np.clip(area + np.random.default_rng(seed).normal(0, noise_px, area.size), 0, None)
+    return Recording(area=area, fps=FPS, name=name)
+
+
+def _start(truth):
+    p = truth.params()
+    return truth.set(K=p["K"] * 1.3, C_f=p["C_f"] * 0.6, S=30.0)
+
+
+def _rel_errors(result, truth):
+    p = truth.params()
+    return {n: abs(result.params[n] / float(p[n]) - 1.0) for n in ("S", "K", "C_f")}
+
+
+@pytest.fixture(scope="module")
+def n1_fit():
+    truth = vfjax.preset("N1")
+    rec = _recording(truth, t_start=0.0312)  # an arbitrary point of the cycle
+    return truth, rec, fit(_start(truth), rec, progress=False)
+
+
+def test_recovers_parameters_without_noise(n1_fit):
+    truth, _, result = n1_fit
+    errs = _rel_errors(result, truth)
+    assert max(errs.values()) < 0.01, errs
+    assert result.nmse < 1e-6
+
+
+def test_polish_never_worse_than_the_swarm(n1_fit):
+    _, _, result = n1_fit
+    assert np.all(np.diff(result.pso_trace) <= 0)
+    assert np.all(np.diff(result.lm_trace) <= 0)
+    assert result.lm_trace[0] <= result.pso_trace[-1] * (1 + 1e-9)
+    assert result.nmse == result.lm_trace[-1]
+    assert result.optimistix_result in ("successful", "max_steps_reached")
+
+
+def test_fitted_gaw_reproduces_the_recording(n1_fit):
+    _, rec, result = n1_fit
+    gaw = result.fitted_gaw(rec)
+    nmse = np.sum((gaw - rec.area) ** 2) / np.sum(rec.area**2)
+    assert nmse == pytest.approx(result.nmse, rel=1e-6, abs=1e-12)
+
+
+def test_recovers_parameters_with_2px_noise():
+    truth = vfjax.preset("N3")
+    rec = _recording(truth, t_start=0.0277, noise_px=2.0, seed=3)
+    result = fit(_start(truth), rec, progress=False)
+    errs = _rel_errors(result, truth)
+    assert max(errs.values()) < 0.05, errs
+
+
+def test_shared_syn_base_fit_reaches_the_true_parameters_error(shared_dir):
+    """NMSE of the fit <= 1.1 x the NMSE of the true parameters (each with its best time
+    shift; the truth's S held at its value)."""
+    folder = shared_dir / "data" / "synthetic"
+    rec = load_recording(folder / "syn_base.csv")
+    tp = json.loads((folder / "syn_base.answer.json").read_text())["true_params"]
+    truth = vfjax.paper_model(K_N_per_m=tp["K_N_per_m"], C_f_g_per_s=tp["Cf"],
+                              S_px_per_mm2=tp["S_px_per_mm2"], t_c_s=tp["t_c_s"],
+                              P_s_dyne_per_cm2=tp["Ps_dyn_per_cm2"], mass_g=tp["M_g"],
+                              length_cm=tp["l_cm"])  # fmt: skip
+    s = tp["S_px_per_mm2"]
+    at_truth = fit(truth, rec, params=("S",), bounds={"S": (s * (1 - 1e-9), s * (1 + 1e-9))},
+                   iterations=20, polish=False, progress=False)  # fmt: skip
+    result = fit(vfjax.preset("N1"), rec, progress=False)
+    assert result.nmse <= 1.1 * at_truth.nmse, (result.nmse, at_truth.nmse)
+    assert at_truth.params["S"] == pytest.approx(s, rel=1e-6)
+
+
+def test_same_key_same_result_and_callback():
+    truth = vfjax.preset("N1")
+    rec = _recording(truth, t_start=0.03)
+    seen = []
+    kw = dict(iterations=10, chunk=5, polish=False, progress=False, swarm_size=16)
+    a = fit(truth, rec, key=jax.random.key(7), callback=lambda i, c: seen.append((i, c)), **kw)
+    b = fit(truth, rec, key=jax.random.key(7), **kw)
+    c = fit(truth, rec, key=jax.random.key(8), **kw)
+    assert a.params == b.params and a.pso_trace == b.pso_trace
+    assert a.pso_trace != c.pso_trace
+    assert [i for i, _ in seen] == [5, 10]
+    assert seen[-1][1] == a.pso_trace[-1]
+
+
+def test_json_round_trip_without_loss(n1_fit, tmp_path):
+    _, rec, result = n1_fit
+    path = tmp_path / "fit.json"
+    result.to_json(path)
+    schema = json.loads(
+        (vfjax.__file__ and __import__("pathlib").Path(__file__).parents[1] / "data_schema"
+         / "fit_result.schema.json").read_text()
+    )  # fmt: skip
+    jsonschema.validate(json.loads(path.read_text()), schema)
+    back = vfjax.FitResult.from_json(path)
+    for f in ("params", "units", "time_shift", "nmse", "pso_trace", "lm_trace", "timings",
+              "n_simulations", "optimistix_result", "settings", "recording_name"):  # fmt: skip
+        assert getattr(back, f) == getattr(result, f), f
+    assert back.model.params().keys() == result.model.params().keys()
+    for k, v in result.model.params().items():
+        assert float(back.model.params()[k]) == float(v)
+    np.testing.assert_array_equal(back.fitted_gaw(rec), result.fitted_gaw(rec))
+
+
+def test_fit_many_matches_single_fits():
+    truth = vfjax.preset("N1")
+    recs = [_recording(truth.set(K=truth.params()["K"] * f), t_start=0.03 + 0.001 * i, name=f"r{i}")
+            for i, f in enumerate([0.9, 1.0, 1.1])]  # fmt: skip
+    results = fit_many(_start(truth), recs)
+    for f, r in zip([0.9, 1.0, 1.1], results):
+        assert r.params["K"] / float(truth.params()["K"]) == pytest.approx(f, rel=0.01)
+        assert r.params["S"] == pytest.approx(43.7988, rel=0.01)
+        assert r.nmse < 1e-4
+
+
+def test_bad_input_is_refused():
+    truth = vfjax.preset("N1")
+    rec = _recording(truth, t_start=0.03)
+    with pytest.raises(ValueError, match="cannot fit"):
+        fit(truth, rec, params=("S", "eta"))
+    with pytest.raises(ValueError, match="bounds for K"):
+        fit(truth, rec, params=("S", "K"), bounds={"K": (1.0, 2.0)})
+    with pytest.raises(ValueError, match="fewer than two glottal cycles"):
+        fit(truth, Recording(area=rec.area[:20], fps=FPS))
+    with pytest.raises(ValueError, match="S is fixed"):
+        fit(truth, Recording(area=rec.area / 43.8, fps=FPS, unit="mm2"))
+    with pytest.raises(TypeError, match="Recording"):
+        fit(truth, rec.area)
+    with pytest.raises(ValueError, match="negative"):
+        Recording(area=-rec.area, fps=FPS)
+    with pytest.raises(ValueError, match="NaN"):
+        Recording(area=np.r_[rec.area[:-1], np.nan], fps=FPS)
+    with pytest.raises(ValueError, match="fps"):
+        Recording(area=rec.area, fps=0.0)
