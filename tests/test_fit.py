@@ -50,7 +50,9 @@ def test_polish_never_worse_than_the_swarm(n1_fit):
     _, _, result = n1_fit
     assert np.all(np.diff(result.pso_trace) <= 0)
     assert np.all(np.diff(result.lm_trace) <= 0)
-    assert result.lm_trace[0] <= result.pso_trace[-1] * (1 + 1e-9)
+    # the swarm's best, re-evaluated as the polish's start (same point, another code path:
+    # equal to rounding)
+    assert result.lm_trace[0] <= result.pso_trace[-1] * (1 + 1e-6)
     assert result.nmse == result.lm_trace[-1]
     assert result.optimistix_result in ("successful", "max_steps_reached")
 
