@@ -185,7 +185,12 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fit", help="fit the paper's model to a recording (CSV/TSV + sidecar)")
     f.add_argument("recording", help="GAW table; its sidecar is the same path with .json")
     f.add_argument("--out", default="vfjax_output", help="output folder (default: %(default)s)")
-    f.add_argument("--params", nargs="+", default=["S", "K", "C_f"], help="parameters to fit")
+    f.add_argument(
+        "--params",
+        nargs="+",
+        default=["S", "K", "C_f", "t_c"],
+        help="parameters to fit (default: %(default)s; the paper fitted S, K, C_f)",
+    )
     f.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from "
                    "(default: N1 for male or unknown, N3 for female)")  # fmt: skip
     f.add_argument("--iterations", type=int, default=60, help="PSO iterations")

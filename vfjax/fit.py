@@ -59,6 +59,9 @@ class FitResult:
         nmse: normalised squared error of the fitted GAW.
         pso_trace: best NMSE after each PSO iteration (index 0: the initial swarm).
         lm_trace: best NMSE after each Levenberg-Marquardt step (index 0: the start).
+        trace_times: wall time (s since the fit began) of each entry of ``pso_trace`` followed
+            by each entry of ``lm_trace`` (PSO iterations within a jitted chunk are spread
+            evenly over the chunk's time).
         timings: wall time of each stage (s), compilation included, and the compile time.
         n_simulations: simulated recordings (a Jacobian counts as one per column).
         optimistix_result: the polish's result code ("successful", "max_steps_reached", ...).
@@ -74,6 +77,7 @@ class FitResult:
     pso_trace: list
     lm_trace: list
     timings: dict
+    trace_times: list
     n_simulations: int
     optimistix_result: str
     settings: dict
@@ -197,17 +201,51 @@ class _Problem(eqx.Module):
         return jnp.concatenate([z, jnp.log(self.projected_scale(g) / self.s_reference)[None]])
 
 
-def estimate_closure_duration(recording: Recording, level: float = 0.02) -> float | None:
-    """Mean length (s) of the runs of frames whose area is at most ``level`` x the peak;
-    None when the glottis never closes. The paper takes t_c from the measured GAW this way."""
-    closed = recording.area <= level * recording.area.max()
-    if not closed.any() or closed.all():
+def estimate_closure_duration(recording: Recording, levels=(0.1, 0.2)) -> float | None:
+    """Closed-phase duration (s) measured on the GAW, or None if the glottis never closes.
+
+    For each closed phase, the times at which the area falls through and rises back through
+    ``levels`` (fractions of the peak) are located to a fraction of a frame, and the width of
+    the closed phase is extrapolated linearly to zero level: ``2 w(L1) - w(L2)``. The
+    median over the complete closed phases is returned. The paper takes t_c from the measured
+    GAW; this gives it without the bias of counting frames under a threshold.
+    """
+    a = recording.area
+    peak = a.max()
+    l1, l2 = levels
+    low = a <= l1 * peak
+    if not low.any() or low.all():
         return None
-    edges = np.diff(np.r_[0, closed.astype(int), 0])
+
+    def crossing(i, level, down):
+        # fractional frame index where a crosses level*peak between frames i and i+1
+        thr = level * peak
+        return (
+            i + (a[i] - thr) / (a[i] - a[i + 1]) if down else i + (thr - a[i]) / (a[i + 1] - a[i])
+        )
+
+    edges = np.diff(np.r_[0, low.astype(int), 0])
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    inner = [(a, b) for a, b in zip(starts, ends) if a > 0 and b < closed.size]
-    runs = [b - a for a, b in (inner or list(zip(starts, ends)))]
-    return float(np.mean(runs)) / recording.fps
+    widths = []
+    for s0, e0 in zip(starts, ends):
+        if s0 == 0 or e0 >= a.size:
+            continue  # a closed phase cut by the recording's ends
+        w = []
+        for level in (l1, l2):
+            i = s0 - 1
+            while i > 0 and a[i] <= level * peak:
+                i -= 1
+            j = e0 - 1
+            while j < a.size - 1 and a[j + 1] <= level * peak:
+                j += 1
+            if a[i] <= level * peak or j >= a.size - 1:
+                break
+            w.append(crossing(j, level, down=False) - crossing(i, level, down=True))
+        if len(w) == 2:
+            widths.append(2 * w[0] - w[1])
+    if not widths:
+        return None
+    return float(np.median(widths)) / recording.fps
 
 
 def initial_model(recording: Recording, template: str | None = None) -> VocalFoldModel:
@@ -407,6 +445,7 @@ def fit(
     jax.block_until_ready(state)
     t_first = time.perf_counter() - t0
     pso_trace = [float(state.global_cost)]
+    trace_times = [time.perf_counter() - t_all]
     done_iters = 0
     compile_s = t_first
     while done_iters < iterations:
@@ -417,6 +456,8 @@ def fit(
         if done_iters == 0:
             compile_s += time.perf_counter() - tc  # first chunk includes its compilation
         pso_trace += costs.tolist()
+        now = time.perf_counter() - t_all
+        trace_times += np.linspace(trace_times[-1], now, n + 1)[1:].tolist()
         done_iters += n
         if bar is not None:
             bar.update(n)
@@ -434,6 +475,7 @@ def fit(
     r = problem.residual(y)
     best_cost = float(jnp.sum(r * r))
     lm_trace = [best_cost]
+    trace_times.append(time.perf_counter() - t_all)
     result_name = "not run"
     if polish:
         lm_state = _lm_init(problem, y, rtol, atol)
@@ -445,6 +487,7 @@ def fit(
             if np.isfinite(cost) and cost < best_cost:
                 best_cost, best_y = cost, y
             lm_trace.append(best_cost)
+            trace_times.append(time.perf_counter() - t_all)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(nmse=f"{best_cost:.3g}")
@@ -467,6 +510,7 @@ def fit(
         nmse=best_cost,
         pso_trace=pso_trace,
         lm_trace=lm_trace,
+        trace_times=trace_times,
         timings={
             "pso_s": t_pso,
             "lm_s": t_lm,
@@ -607,6 +651,8 @@ def fit_many(
             nmse=float(best_cost[i]),
             pso_trace=pso_traces[i].tolist(),
             lm_trace=lm_traces[i].tolist(),
+            trace_times=(np.r_[np.linspace(0, t_pso, pso_traces.shape[1]),
+                               t_pso + np.linspace(0, t_lm, lm_traces.shape[1])]).tolist(),
             timings={"pso_s": t_pso, "lm_s": t_lm, "total_s": time.perf_counter() - t_all,
                      "batch_size": len(recordings)},
             n_simulations=int(swarm_size * (1 + iterations) + n_lm * (1 + best_y.shape[1])),
