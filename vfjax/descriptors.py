@@ -1,9 +1,35 @@
 """GAW descriptors, computed the same way for measured and simulated waveforms.
 
-Cycle detection: a cycle starts where the area rises through the middle of its range (the
-level half way between its minimum and maximum), located to a fraction of a frame by linear
-interpolation between the two frames around the crossing.
+Cycles. A cycle runs from one glottal opening instant to the next. Within a cycle, with
+``A_min`` its minimum (the closed-phase level) and ``amp = A_max - A_min`` its amplitude, the
+*opening instant* is where the area rises through ``A_min + level * amp`` and the *closing
+instant* where it falls back through it (``level`` = 5 % by default), both located to a fraction
+of a frame by linear interpolation. The peak instant is the frame of maximum area.
+
+Per cycle, with T the cycle length, T_op = peak - opening and T_cl = closing - peak:
+
+| descriptor | definition | reference |
+|---|---|---|
+| f0 | 1 / mean T | |
+| open quotient, OQ | (T_op + T_cl) / T | Timcke, von Leden & Moore 1958 |
+| speed quotient, SQ | T_op / T_cl | Timcke et al. 1958 |
+| closing quotient, CQ | T_cl / T | Holmberg, Hillman & Perkell 1988 |
+| asymmetry quotient, AsyQ | T_op / (T_op + T_cl) | Dejonckere 1981 |
+| speed index, SI | (T_op - T_cl) / (T_op + T_cl) | Dejonckere 1981 |
+| maximum area declination rate, MADR | max of -dA/dt in the cycle (unit/s) | Holmberg et al. 1988 |
+| amplitude quotient, AQ | amp / MADR (s) | Alku & Vilkman 1996 |
+| normalised amplitude quotient, NAQ | AQ / T | Alku, Bäckström & Vilkman 2002 |
+| glottal gap index, GGI | A_min / A_max | Patel, Dubrovskiy & Döllinger 2014 |
+| closed-phase level | A_min (unit) | |
+| amplitude | A_max - A_min (unit) | |
+| jitter (local) | mean abs(T_i - T_i+1) / mean T | Baken & Orlikoff 2000 |
+| shimmer (local) | mean abs(amp_i - amp_i+1) / mean amp | Baken & Orlikoff 2000 |
+
+dA/dt is the central difference of the frames. Quotients are means over the complete cycles.
 """
+
+import dataclasses
+import warnings
 
 import numpy as np
 
@@ -43,3 +69,134 @@ def fundamental_frequency(area, fps: float) -> float:
     if len(starts) < 2:
         return float("nan")
     return float((len(starts) - 1) / (starts[-1] - starts[0]))
+
+
+@dataclasses.dataclass(frozen=True)
+class Cycle:
+    """One glottal cycle (times in s from the first frame, areas in the GAW's unit)."""
+
+    opening: float
+    peak: float
+    closing: float
+    end: float  # the next cycle's opening
+    minimum: float
+    maximum: float
+    madr: float
+
+    @property
+    def period(self) -> float:
+        return self.end - self.opening
+
+    @property
+    def amplitude(self) -> float:
+        return self.maximum - self.minimum
+
+
+def _rise(a, i, thr):
+    return i + (thr - a[i]) / (a[i + 1] - a[i])
+
+
+def _fall(a, i, thr):
+    return i + (a[i] - thr) / (a[i] - a[i + 1])
+
+
+def detect_cycles(area, fps: float, level: float = 0.05) -> list[Cycle]:
+    """The complete glottal cycles of a GAW (see the module's definitions)."""
+    a = _as_waveform(area, fps)
+    starts = cycle_starts(a, fps)
+    if len(starts) < 2:
+        return []
+    mids = np.round(starts * fps).astype(int)  # frames on each cycle's rising edge
+    rate = np.gradient(a) * fps
+    cycles = []
+    # each cycle: from the minimum before one rising edge to the minimum before the next
+    lows = [int(np.argmin(a[(mids[k - 1] if k else 0) : mids[k] + 1])) + (mids[k - 1] if k else 0)
+            for k in range(len(mids))]  # fmt: skip
+    openings = []
+    for k in range(len(mids)):
+        lo_i = lows[k]
+        base = a[lo_i]
+        seg_max = a[lo_i : (lows[k + 1] if k + 1 < len(lows) else a.size)].max()
+        thr = base + level * (seg_max - base)
+        i = lo_i
+        while i < mids[k] and a[i + 1] < thr:
+            i += 1
+        openings.append(_rise(a, i, thr) if a[i + 1] != a[i] else float(i))
+    for k in range(len(mids) - 1):
+        lo_i, hi_i = lows[k], lows[k + 1]
+        seg = a[lo_i : hi_i + 1]
+        base = min(seg.min(), a[hi_i])
+        p = lo_i + int(np.argmax(seg))
+        peak = float(p)
+        amp = a[p] - base
+        thr = base + level * amp
+        j = p
+        while j < hi_i and a[j + 1] > thr:
+            j += 1
+        closing = _fall(a, j, thr) if j < hi_i and a[j] != a[j + 1] else float(j)
+        cycles.append(Cycle(
+            opening=openings[k] / fps, peak=peak / fps, closing=closing / fps,
+            end=openings[k + 1] / fps, minimum=float(seg.min()), maximum=float(a[p]),
+            madr=float(max(0.0, -rate[p : hi_i + 1].min())),
+        ))  # fmt: skip
+    return cycles
+
+
+@dataclasses.dataclass(frozen=True)
+class Descriptors:
+    """GAW descriptors (see the module for definitions); NaN where undefined."""
+
+    n_cycles: int
+    f0: float  # Hz
+    open_quotient: float
+    speed_quotient: float
+    closing_quotient: float
+    asymmetry_quotient: float
+    speed_index: float
+    madr: float  # unit/s
+    amplitude_quotient: float  # s
+    naq: float
+    glottal_gap_index: float
+    closed_phase_level: float  # unit
+    amplitude: float  # unit
+    jitter: float  # fraction
+    shimmer: float  # fraction
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def describe(area, fps: float, level: float = 0.05) -> Descriptors:
+    """All descriptors of a GAW; warns and returns NaNs when no complete cycle is found."""
+    cycles = detect_cycles(area, fps, level)
+    nan = float("nan")
+    if not cycles:
+        warnings.warn("no complete glottal cycle found: descriptors are NaN", stacklevel=2)
+        return Descriptors(0, *([nan] * 14))
+    T = np.array([c.period for c in cycles])
+    t_op = np.array([c.peak - c.opening for c in cycles])
+    t_cl = np.array([c.closing - c.peak for c in cycles])
+    amp = np.array([c.amplitude for c in cycles])
+    madr = np.array([c.madr for c in cycles])
+    aq = np.where(madr > 0, amp / np.where(madr > 0, madr, 1.0), nan)
+
+    def rel_diff(x):
+        return float(np.mean(np.abs(np.diff(x))) / np.mean(x)) if len(x) > 1 else nan
+
+    return Descriptors(
+        n_cycles=len(cycles),
+        f0=float(1.0 / T.mean()),
+        open_quotient=float(np.mean((t_op + t_cl) / T)),
+        speed_quotient=float(np.mean(t_op / t_cl)),
+        closing_quotient=float(np.mean(t_cl / T)),
+        asymmetry_quotient=float(np.mean(t_op / (t_op + t_cl))),
+        speed_index=float(np.mean((t_op - t_cl) / (t_op + t_cl))),
+        madr=float(madr.mean()),
+        amplitude_quotient=float(np.nanmean(aq)),
+        naq=float(np.nanmean(aq / T)),
+        glottal_gap_index=float(np.mean([c.minimum / c.maximum for c in cycles])),
+        closed_phase_level=float(np.mean([c.minimum for c in cycles])),
+        amplitude=float(amp.mean()),
+        jitter=rel_diff(T),
+        shimmer=rel_diff(amp),
+    )

@@ -22,6 +22,10 @@ class Recording:
         unit: "px", "mm2" or "cm2".
         metadata: subject and source information (sex, vocal_fold_length_cm, ...).
         name: a short label (e.g. the file stem).
+        edges: optional glottal edge traces, shape (frames, 2, rows): the left and right
+            edge column of each image row (0 where the glottis does not reach the row), as
+            in contour segmentations; kept for asymmetry analysis.
+        masks: optional per-frame binary glottis masks, shape (frames, height, width).
     """
 
     area: np.ndarray
@@ -29,6 +33,8 @@ class Recording:
     unit: str = "px"
     metadata: dict = dataclasses.field(default_factory=dict)
     name: str = "recording"
+    edges: np.ndarray | None = None
+    masks: np.ndarray | None = None
 
     def __post_init__(self):
         area = np.asarray(self.area, dtype=float)
@@ -44,6 +50,10 @@ class Recording:
             raise ValueError(f"fps (frame rate) must be a number > 0 Hz, got {self.fps!r}")
         if self.unit not in AREA_UNITS:
             raise ValueError(f"unit must be one of {AREA_UNITS}, got {self.unit!r}")
+        for extra in ("edges", "masks"):
+            value = getattr(self, extra)
+            if value is not None and len(value) != area.size:
+                raise ValueError(f"{extra} has {len(value)} frames, area has {area.size}")
         area.setflags(write=False)
         object.__setattr__(self, "area", area)
         object.__setattr__(self, "fps", float(self.fps))
@@ -114,3 +124,41 @@ def load_recording(path, sidecar=None) -> Recording:
         raise ValueError(f"{path}: non-numeric value in column {column}: {err}") from None
     fps = meta["fps"]
     return Recording(area=area, fps=fps, unit=unit, metadata=meta, name=path.stem)
+
+
+def load_contours(path, fps: float, **metadata) -> Recording:
+    """Load a glottal contour file (``*_segdata.txt`` of the AutoGlottisSegmentation study).
+
+    Format: a comment line, then two lines per frame: the glottis' left and right edge as a
+    column index for each image row (0 where the glottis does not reach the row). The area
+    of a frame is the sum over rows of ``right - left`` where both are non-zero (pixels).
+    The frame rate is not in the file: give it (Hz).
+    """
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no contour file at {path}")
+    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps (frame rate) must be a number > 0 Hz, got {fps!r}")
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    if len(lines) % 2:
+        raise ValueError(f"{path}: {len(lines)} edge lines; expected two (left, right) per frame")
+    try:
+        rows = [np.array(ln.split(), dtype=float) for ln in lines]
+    except ValueError as err:
+        raise ValueError(f"{path}: non-numeric edge value: {err}") from None
+    widths = {r.size for r in rows}
+    if len(widths) != 1:
+        raise ValueError(f"{path}: edge lines of different lengths {sorted(widths)}")
+    edges = np.stack(rows).reshape(-1, 2, rows[0].size)
+    left, right = edges[:, 0], edges[:, 1]
+    both = (left > 0) & (right > 0)
+    width = np.where(both, right - left, 0.0)
+    if np.any(width < 0):
+        frame = int(np.flatnonzero((width < 0).any(axis=1))[0])
+        warnings.warn(f"{path}: right edge left of the left edge in frame {frame}; "
+                      "those rows count as closed", stacklevel=2)  # fmt: skip
+        width = np.maximum(width, 0.0)
+    meta = {"source": str(path.name), "fps_given": fps, **metadata}
+    name = path.name.removesuffix("_segdata.txt").removesuffix(".txt")
+    return Recording(area=width.sum(axis=1), fps=fps, unit="px", metadata=meta, name=name,
+                     edges=edges)  # fmt: skip

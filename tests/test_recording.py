@@ -1,0 +1,71 @@
+"""Loading recordings: tables with sidecars, and the real contour files."""
+
+import json
+
+import numpy as np
+import pytest
+
+import vfjax
+from vfjax.descriptors import fundamental_frequency
+from vfjax.recording import Recording, load_contours, load_recording
+
+REAL = {  # file stem: (frames, fps, f0 noted in the data's README or None)
+    "MN003_adapt": (157, 8000.0, None),
+    "FD003_pre": (145, 8000.0, None),
+    "FN003": (127, 8000.0, 186.0),
+    "FP005_naso": (130, 4000.0, 235.0),
+}
+
+
+@pytest.mark.parametrize("stem", list(REAL))
+def test_real_contours(shared_dir, stem):
+    frames, fps, f0 = REAL[stem]
+    path = shared_dir / "data" / "real" / f"{stem}_segdata.txt"
+    rec = load_contours(path, fps)
+    assert rec.n_frames == frames and rec.edges.shape == (frames, 2, 256)
+    # the area, computed independently from the raw lines
+    lines = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
+    left = np.array(lines[0].split(), float)
+    right = np.array(lines[1].split(), float)
+    ok = (left > 0) & (right > 0)
+    assert rec.area[0] == np.sum((right - left)[ok])
+    if f0 is not None:
+        assert fundamental_frequency(rec.area, fps) == pytest.approx(f0, rel=0.03)
+
+
+def test_table_and_sidecar(shared_dir, tmp_path):
+    rec = load_recording(shared_dir / "data" / "synthetic" / "syn_gap.csv")
+    assert rec.fps == 4000.0 and rec.unit == "px" and rec.n_frames == 201
+    assert rec.metadata["sex"] == "female" and rec.name == "syn_gap"
+    # a round trip through vfjax's writer
+    from vfjax.io import write_recording
+
+    path = write_recording(rec, tmp_path / "copy.csv")
+    back = load_recording(path)
+    np.testing.assert_allclose(back.area, rec.area)
+    assert back.fps == rec.fps
+
+
+def test_bad_tables_are_refused(tmp_path):
+    csv = tmp_path / "a.csv"
+    csv.write_text("frame,area_px\n0,1\n1,2\n")
+    with pytest.raises(FileNotFoundError, match="sidecar"):
+        load_recording(csv)
+    (tmp_path / "a.json").write_text(json.dumps({"area_unit": "px"}))
+    with pytest.raises(ValueError, match="fps"):
+        load_recording(csv)
+    (tmp_path / "a.json").write_text(json.dumps({"fps": 4000, "area_unit": "px"}))
+    csv.write_text("frame,area_px\n0,1\n1,x\n")
+    with pytest.raises(ValueError, match="non-numeric"):
+        load_recording(csv)
+    csv.write_text("frame,volume\n0,1\n1,2\n")
+    with pytest.raises(ValueError, match="no area column"):
+        load_recording(csv)
+    with pytest.raises(ValueError, match="frames"):
+        Recording(area=np.ones(5), fps=4000.0, edges=np.zeros((4, 2, 3)))
+    bad = tmp_path / "b_segdata.txt"
+    bad.write_text("# c\n1 2 3\n")
+    with pytest.raises(ValueError, match="two"):
+        load_contours(bad, 4000.0)
+    with pytest.raises(ValueError, match="fps"):
+        load_contours(bad, -1.0)
