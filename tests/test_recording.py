@@ -5,7 +5,6 @@ import json
 import numpy as np
 import pytest
 
-import vfjax
 from vfjax.descriptors import fundamental_frequency
 from vfjax.recording import Recording, load_contours, load_recording
 
