@@ -5,7 +5,8 @@ Method, for a (frames, height, width) grey video:
 2. Drift: each frame is registered to the temporal median frame by phase correlation
    (whole-pixel shifts, one batched FFT for the whole video) and shifted back.
 3. Region of interest: the glottis is what moves. The temporal standard deviation of each
-   pixel is thresholded (Otsu); the largest moving component, padded, is the ROI.
+   pixel is thresholded (Otsu); the moving components (all of at least a tenth of the largest),
+   padded, make the ROI.
 4. Darkness: a pixel's *tissue* brightness is a high percentile of its values over time
    (the glottis is closed, or elsewhere, most of the time); a frame's darkness is tissue
    brightness minus the pixel's value. Static dark structures (shadows) have no darkness.
@@ -116,7 +117,11 @@ def segment_video(
     labels = measure.label(moving)
     if labels.max() == 0:
         raise ValueError("no moving region found: is there a vibrating glottis in view?")
-    core = labels == (np.argmax(np.bincount(labels.ravel())[1:]) + 1)
+    # the moving region: every component of at least a tenth of the largest (a mucus bridge or
+    # a specular highlight can split the glottis's region in parts)
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    core = (sizes >= 0.1 * sizes.max())[labels]
     rows, cols = np.nonzero(core)
     r0, r1 = max(rows.min() - roi_pad, 0), min(rows.max() + roi_pad + 1, v.shape[1])
     c0, c1 = max(cols.min() - roi_pad, 0), min(cols.max() + roi_pad + 1, v.shape[2])
