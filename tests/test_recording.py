@@ -68,3 +68,24 @@ def test_bad_tables_are_refused(tmp_path):
         load_contours(bad, 4000.0)
     with pytest.raises(ValueError, match="fps"):
         load_contours(bad, -1.0)
+
+
+def test_crop_and_resample():
+    area = np.sin(np.linspace(0, 6 * np.pi, 201)) ** 2 * 100
+    rec = Recording(area=area, fps=4000.0, name="x")
+    c = rec.crop(0.01, 0.02)
+    assert c.n_frames == 40 and c.area[0] == area[40]
+    r = rec.resample(8000.0)
+    assert r.n_frames == 401 and r.fps == 8000.0
+    np.testing.assert_allclose(r.area[::2], area)  # original frames kept exactly
+    np.testing.assert_allclose(r.area[1::2], 0.5 * (area[:-1] + area[1:]))  # linear between
+    with pytest.raises(ValueError, match="crop"):
+        rec.crop(0.04, 0.1)
+
+
+def test_sidecar_errors_name_the_field(tmp_path):
+    csv = tmp_path / "a.csv"
+    csv.write_text("frame,area_px\n0,1\n1,2\n")
+    (tmp_path / "a.json").write_text(json.dumps({"fps": -4000, "area_unit": "inch"}))
+    with pytest.raises(ValueError, match=r"fps: -4000 .*|area_unit: 'inch'"):
+        load_recording(csv)

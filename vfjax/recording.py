@@ -72,6 +72,30 @@ class Recording:
         """Time from the first to the last frame (s)."""
         return (self.n_frames - 1) / self.fps
 
+    def crop(self, start: float = 0.0, stop: float | None = None) -> "Recording":
+        """The frames from time ``start`` to ``stop`` (s, from the first frame; stop excluded)."""
+        i0 = int(round(start * self.fps))
+        i1 = self.n_frames if stop is None else int(round(stop * self.fps))
+        if not 0 <= i0 < i1 <= self.n_frames or i1 - i0 < 2:
+            raise ValueError(f"crop [{start}, {stop}) s is outside the recording's "
+                             f"{self.duration:.6g} s or shorter than 2 frames")  # fmt: skip
+        sl = slice(i0, i1)
+        return dataclasses.replace(
+            self, area=self.area[sl],
+            edges=None if self.edges is None else self.edges[sl],
+            masks=None if self.masks is None else self.masks[sl],
+        )  # fmt: skip
+
+    def resample(self, fps: float) -> "Recording":
+        """The GAW at another frame rate (Hz), by linear interpolation over the same span.
+        Per-frame edges and masks do not survive resampling and are dropped."""
+        if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps (frame rate) must be a number > 0 Hz, got {fps!r}")
+        t = np.arange(int(np.floor(self.duration * fps + 1e-9)) + 1) / fps
+        area = np.interp(t, self.time, self.area)
+        meta = {**self.metadata, "resampled_from_fps": self.fps}
+        return Recording(area=area, fps=float(fps), unit=self.unit, metadata=meta, name=self.name)
+
     @classmethod
     def from_simulation(cls, sim, fps: float, name: str = "simulated", **metadata):
         """A recording of a `Simulation`'s GAW (pixels), negative areas clipped to 0."""
@@ -93,8 +117,7 @@ def load_recording(path, sidecar=None) -> Recording:
     if not sidecar.exists():
         raise FileNotFoundError(f"no sidecar {sidecar}: it must give fps and area_unit")
     meta = json.loads(sidecar.read_text())
-    if "fps" not in meta:
-        raise ValueError(f"{sidecar}: missing 'fps' (frame rate, Hz)")
+    validate_sidecar(meta, sidecar)
     delimiter = "\t" if path.suffix.lower() in (".tsv", ".tab") else ","
     with path.open(newline="") as f:
         rows = list(csv.DictReader(f, delimiter=delimiter))
@@ -162,3 +185,19 @@ def load_contours(path, fps: float, **metadata) -> Recording:
     name = path.name.removesuffix("_segdata.txt").removesuffix(".txt")
     return Recording(area=width.sum(axis=1), fps=fps, unit="px", metadata=meta, name=name,
                      edges=edges)  # fmt: skip
+
+
+def validate_sidecar(meta: dict, where="sidecar") -> None:
+    """Check a recording sidecar against ``data_schema/recording.schema.json``; the error
+    names the field and what is wrong with it."""
+    import jsonschema
+
+    schema_path = pathlib.Path(__file__).parent / "schemas" / "recording.schema.json"
+    schema = json.loads(schema_path.read_text())
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(meta), key=str)
+    if errors:
+        lines = []
+        for err in errors:
+            field = ".".join(map(str, err.absolute_path)) or "(top level)"
+            lines.append(f"{field}: {err.message}")
+        raise ValueError(f"{where}: invalid recording sidecar: " + "; ".join(lines))
