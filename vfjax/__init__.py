@@ -25,8 +25,12 @@ from .terms import (  # noqa: E402
     BernoulliForce,
     ClosureHold,
     Context,
+    CubicStiffness,
     Elastic,
     FlowSeparation,
+    GlottalGap,
+    MucosalDelay,
+    PressureModulation,
     TanhDamping,
 )
 
@@ -42,6 +46,10 @@ __all__ = [
     "BernoulliForce",
     "ClosureHold",
     "Context",
+    "CubicStiffness",
+    "GlottalGap",
+    "MucosalDelay",
+    "PressureModulation",
     "DenseOutput",
     "Elastic",
     "FitResult",

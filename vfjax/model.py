@@ -75,6 +75,10 @@ class VocalFoldModel(eqx.Module):
         kept = tuple(t for t in self.terms if type(t) is not type(term))
         return VocalFoldModel(self.subject, kept + (term,), self.S)
 
+    def with_effect(self, effect: AbstractTerm) -> "VocalFoldModel":
+        """A copy with the effect added (or replaced); `with_term` by its diagnosis name."""
+        return self.with_term(effect)
+
     def without(self, *classes: type) -> "VocalFoldModel":
         """A copy without the terms of the given classes (switches those effects off)."""
         missing = [c.__name__ for c in classes if not self.has(c)]

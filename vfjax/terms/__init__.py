@@ -2,6 +2,7 @@
 
 - `base`: the abstract kinds of term and the `Context` they read.
 - `paper`: the five terms of the seed paper's model.
+- `effects`: candidate effects the paper's model lacks (MODEL_SPEC.md's catalogue).
 """
 
 from .base import (
@@ -11,6 +12,7 @@ from .base import (
     AbstractTerm,
     Context,
 )
+from .effects import CATALOGUE, CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
 from .paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
 
 __all__ = [
@@ -19,6 +21,11 @@ __all__ = [
     "AbstractPressure",
     "AbstractTerm",
     "BernoulliForce",
+    "CATALOGUE",
+    "CubicStiffness",
+    "GlottalGap",
+    "MucosalDelay",
+    "PressureModulation",
     "ClosureHold",
     "Context",
     "Elastic",
