@@ -40,7 +40,7 @@ from .pso import SwarmSettings, init_swarm, run_chunk
 from .recording import Recording
 
 #: Default search box per parameter, as factors of the starting value.
-DEFAULT_FACTORS = {"K": (0.25, 4.0), "C_f": (0.05, 20.0), "t_c": (0.25, 4.0), "P_s": (0.5, 2.0),
+DEFAULT_FACTORS = {"K": (0.4, 2.5), "C_f": (0.05, 20.0), "t_c": (0.25, 4.0), "P_s": (0.5, 2.0),
                    "S": (0.1, 10.0)}  # fmt: skip
 _SHIFT_GRID = 0.005  # s
 _SHIFT_GRID_POINTS = 48  # shifts tried per particle (about one frame apart)
@@ -263,7 +263,38 @@ def initial_model(recording: Recording, template: str | None = None) -> VocalFol
     t_c = estimate_closure_duration(recording)
     if t_c is not None and model.closure_duration is not None:
         model = model.set(t_c=t_c)
-    return model
+    return match_fundamental_frequency(model, recording)
+
+
+def match_fundamental_frequency(model: VocalFoldModel, recording: Recording, steps: int = 4):
+    """``model`` with K scaled so that its f0 matches the recording's (secant steps in log K
+    against log f0). A start at the right f0 keeps the swarm away from the sub-harmonic
+    minima (a model at half the f0 fitting every other pulse)."""
+    target = fundamental_frequency(recording.area, recording.fps)
+    if not np.isfinite(target):
+        return model
+    n = max(recording.n_frames, int(0.08 * recording.fps))
+
+    def f0_of(k):
+        sim = simulate(model.set(K=k), recording.fps, n, t_start=0.02)
+        if not bool(sim.complete):
+            return float("nan")
+        return fundamental_frequency(np.asarray(sim.area), recording.fps)
+
+    k0 = float(model.params()["K"])
+    f_0 = f0_of(k0)
+    if not np.isfinite(f_0):
+        return model
+    k1 = k0 * (target / f_0) ** 2
+    for _ in range(steps):
+        f_1 = f0_of(k1)
+        if not np.isfinite(f_1) or abs(f_1 / target - 1) < 0.005:
+            break
+        slope = (np.log(f_1) - np.log(f_0)) / (np.log(k1) - np.log(k0)) if k1 != k0 else 0.5
+        slope = slope if slope > 0.05 else 0.5
+        k0, f_0 = k1, f_1
+        k1 = k1 * np.exp(np.log(target / f_1) / slope)
+    return model.set(K=k1) if np.isfinite(f0_of(k1)) else model
 
 
 def _bounds(names, model, bounds):
