@@ -203,6 +203,10 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, t_c):
             c.x, c.v, c.flow, c.inner, c.closing, x1, v1, a0, a1, dt, x0, xc
         )
         flow, inner, closing = c.flow ^ is_flow, c.inner ^ is_inner, c.closing ^ is_dir
+        # A velocity reversal can fall beyond a surface the same step grazed (in and out of
+        # contact within one step): the position flags then follow the reversal point.
+        flow = jnp.where(is_dir, xe > x0, flow)
+        inner = jnp.where(is_dir, xe <= xc, inner)
         starts_hold = is_dir & c.closing & (xe <= x0) if has_hold else jnp.zeros((), bool)
         free = _Carry(
             t=jnp.where(event, c.t + theta * dt, t_target),

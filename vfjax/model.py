@@ -46,17 +46,18 @@ class VocalFoldModel(eqx.Module):
 
     def __check_init__(self):
         check_positive("S (scaling factor)", self.S, "px/mm²")
-        names: dict[str, str] = {}
         for term in self.terms:
             if not isinstance(term, AbstractTerm):
                 raise TypeError(f"terms must be vfjax terms, got {term!r}")
+        kinds = [type(t) for t in self.terms]
+        if len(set(kinds)) != len(kinds):
+            raise ValueError("a model holds at most one term of each class")
+        names: dict[str, str] = {}
+        for term in self.terms:
             for name in term.parameters:
                 if name in names or name in _MODEL_PARAMETERS:
                     raise ValueError(f"parameter name {name!r} appears twice in the model")
                 names[name] = type(term).__name__
-        kinds = [type(t) for t in self.terms]
-        if len(set(kinds)) != len(kinds):
-            raise ValueError("a model holds at most one term of each class")
 
     # ----------------------------------------------------------------- terms
     def term(self, cls: type) -> AbstractTerm | None:

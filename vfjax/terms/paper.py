@@ -126,13 +126,23 @@ class FlowSeparation(AbstractForce):
 
     While closing inside x_c (x_0 < x <= x_c, v < 0) the aerodynamic force acts only on the
     shrinking effective length, which adds ``F_f.s. = -F_a (x - x_c) / (x_0 - x_c)``.
-    It has no parameter; remove it from the model to switch it off.
+
+    Arguments:
+        fs_strength: scale of the force: 1 is the paper's, 0 switches it off in place (the
+            diagnosis's off-value); or remove the term.
     """
+
+    fs_strength: ArrayLike = eqx.field(default=1.0, converter=as_float)
+    parameters: ClassVar = {"fs_strength": ("fs_strength", "1")}
+    off_values: ClassVar = {"fs_strength": 0.0}
+
+    def __check_init__(self):
+        check_nonnegative("fs_strength (flow-separation strength)", self.fs_strength)
 
     def force(self, ctx: Context) -> Array:
         share = (ctx.x - ctx.xc) / (ctx.x0 - ctx.xc)
         active = ctx.flow & ctx.inner & ctx.closing
-        return jnp.where(active, -ctx.aero_force * share, 0.0)
+        return jnp.where(active, -self.fs_strength * ctx.aero_force * share, 0.0)
 
 
 class ClosureHold(AbstractTerm):
@@ -149,6 +159,8 @@ class ClosureHold(AbstractTerm):
 
     t_c: ArrayLike = eqx.field(converter=as_float)
     parameters: ClassVar = {"t_c": ("t_c", "s")}
+    #: a hold of zero length leaves the motion unchanged: the hold's off-value
+    off_values: ClassVar = {"t_c": 0.0}
 
     def __check_init__(self):
         check_nonnegative("t_c (closure duration)", self.t_c, "s")
