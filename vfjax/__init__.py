@@ -9,9 +9,9 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from . import phases, units  # noqa: E402
+from . import compare, descriptors, diagnose, phases, segmentation, units, video  # noqa: E402
 from .cost import nmse  # noqa: E402
-from .fit import FitResult, fit, fit_many  # noqa: E402
+from .fit import FitResult, fit, fit_many, initial_model  # noqa: E402
 from .integrator import DEFAULT_SUBSTEPS, DenseOutput, Simulation, simulate  # noqa: E402
 from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, paper_model, preset  # noqa: E402
@@ -37,6 +37,12 @@ from .terms import (  # noqa: E402
 __version__ = "0.1.0"
 
 __all__ = [
+    "compare",
+    "descriptors",
+    "diagnose",
+    "segmentation",
+    "video",
+    "initial_model",
     "DEFAULT_SUBSTEPS",
     "PRESETS",
     "AbstractForce",

@@ -1,0 +1,40 @@
+"""Comparison of a fit with its measurement: phases, error shares, descriptors, words."""
+
+import numpy as np
+
+import vfjax
+from vfjax.compare import compare, noise_level, plot_comparison
+from vfjax.fit import fit, initial_model
+from vfjax.recording import Recording
+
+
+def test_gap_is_described_in_words(shared_dir):
+    rec = vfjax.load_recording(shared_dir / "data" / "synthetic" / "syn_gap.csv")
+    result = fit(initial_model(rec), rec, params=("S", "K", "C_f", "t_c"), progress=False)
+    c = compare(result, rec)
+    assert (
+        abs(sum(c.error_share.values()) - 1) < 1e-9 and abs(sum(c.time_share.values()) - 1) < 1e-9
+    )
+    assert c.error_share["closed"] > 0.6  # the gap's error sits in the closed phase
+    words = " ".join(c.failures())
+    assert "never falls below" in words and "closes fully" in words
+    labels = [row[0] for row in c.table()]
+    assert labels[:4] == ["f0", "open quotient", "speed quotient", "closing quotient"]
+    assert plot_comparison(c) is not None
+
+
+def test_perfect_fit_reports_no_failure():
+    # N3 closes with a clear margin (N1 sits on the closing boundary, where LM steps stall)
+    truth = vfjax.preset("N3")
+    area = np.clip(np.asarray(vfjax.simulate(truth, 4000.0, 201, t_start=0.03).area), 0, None)
+    rec = Recording(area=area, fps=4000.0)
+    c = compare(fit(truth, rec, progress=False), rec)
+    assert c.nmse < 1e-8
+    assert c.failures()[0].startswith("no clear failure")
+
+
+def test_noise_level_of_white_noise():
+    rng = np.random.default_rng(0)
+    t = np.arange(2000) / 4000.0
+    area = 100 + 50 * np.sin(2 * np.pi * 20 * t) + rng.normal(0, 2.0, t.size)
+    assert abs(noise_level(area) - 2.0) < 0.15
