@@ -185,3 +185,22 @@ def _modulation_score(model, result, recording, measured, n_fit):
     p = min(1.0, float(stats.chi2.sf(lm, 2)) * len(MODULATION_GRID))
     return EffectScore("PressureModulation", ("a_pm", "f_m", "phi"), lm, 2, p, 0, False,
                        explained, {"f_m": f, "phi": phase})  # fmt: skip
+
+
+def extend(result: FitResult, recording: Recording, effect, params=None, **fit_kwargs):
+    """Add ``effect`` to the fitted model and refit, warm-started from the current fit.
+
+    Arguments:
+        result: the current fit.
+        recording: its recording.
+        effect: the term to add, at its off-value (e.g. ``GlottalGap()``).
+        params: the effect's parameters to fit (default: all of them).
+        fit_kwargs: passed to `vfjax.fit` (default: 40 PSO iterations, no progress bar).
+    Returns the new `FitResult`; its model holds the effect.
+    """
+    from .fit import fit
+
+    model = result.model.with_effect(effect)
+    names = tuple(result.params) + tuple(params or type(effect).parameters)
+    kwargs = {"iterations": 40, "progress": False, **fit_kwargs}
+    return fit(model, recording, params=names, **kwargs)

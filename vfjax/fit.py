@@ -42,6 +42,20 @@ from .recording import Recording
 #: Default search box per parameter, as factors of the starting value.
 DEFAULT_FACTORS = {"K": (0.4, 2.5), "C_f": (0.05, 20.0), "t_c": (0.25, 4.0), "P_s": (0.5, 2.0),
                    "S": (0.1, 10.0)}  # fmt: skip
+#: Parameters searched in linear coordinates (their off-value is 0, or they may be negative):
+#: name -> (default low, default high, scale), in the parameter's unit. Any other parameter
+#: whose starting value is 0 is searched linearly too, with the entry here or (0, 1, 0.1).
+LINEAR = {
+    "a_gap": (0.0, 0.05, 0.01),
+    "eta": (-3000.0, 3000.0, 500.0),
+    "tau": (0.0, 1e-3, 2e-4),
+    "fs_strength": (0.0, 3.0, 0.5),
+    "a_pm": (0.0, 0.5, 0.05),
+    "phi": (-math.pi, math.pi, 1.0),
+    "f_m": (0.5, 30.0, 5.0),
+    "t_c": (0.0, 0.01, 1e-3),
+    "C_min": (0.0, 500.0, 50.0),
+}
 _SHIFT_GRID = 0.005  # s
 _SHIFT_GRID_POINTS = 48  # shifts tried per particle (about one frame apart)
 _DEFAULT_SWARM = SwarmSettings()
@@ -121,10 +135,12 @@ class _Problem(eqx.Module):
     model: VocalFoldModel
     measured: jax.Array  # (frames,)
     reference: jax.Array  # (n_params,) starting values of the non-S fitted parameters
+    scale: jax.Array  # (n_params,) coordinate scale of the linear ones (unused for log ones)
     s_reference: jax.Array  # () starting (or fixed) S
     period: jax.Array  # () T0 estimate (s)
     s_bounds: jax.Array  # (2,) search bounds of S (px/mm²)
     names: tuple = eqx.field(static=True)  # fitted physical parameters, S excluded
+    linear: tuple = eqx.field(static=True)  # per name: linear (True) or log coordinate
     fit_s: bool = eqx.field(static=True)
     fps: float = eqx.field(static=True)
     n_frames: int = eqx.field(static=True)
@@ -133,7 +149,12 @@ class _Problem(eqx.Module):
     substeps: int = eqx.field(static=True)
 
     def model_at(self, z, log_s=None):
-        values = {n: self.reference[i] * jnp.exp(z[i]) for i, n in enumerate(self.names)}
+        values = {
+            n: self.reference[i] + self.scale[i] * z[i]
+            if lin
+            else self.reference[i] * jnp.exp(z[i])
+            for i, (n, lin) in enumerate(zip(self.names, self.linear))
+        }
         s = self.s_reference if log_s is None else self.s_reference * jnp.exp(log_s)
         return self.model.set(**values, S=s)
 
@@ -297,12 +318,25 @@ def match_fundamental_frequency(model: VocalFoldModel, recording: Recording, ste
     return model.set(K=k1) if np.isfinite(f0_of(k1)) else model
 
 
+def _is_linear(name, ref):
+    return name in LINEAR and (ref == 0.0 or name not in ("t_c", "C_min")) or ref == 0.0
+
+
 def _bounds(names, model, bounds):
     params = model.params()
     lo, hi = [], []
     for n in names:
         ref = float(params[n])
-        if bounds and n in bounds:
+        if _is_linear(n, ref):
+            a, b, scale = LINEAR.get(n, (0.0, 1.0, 0.1))
+            if bounds and n in bounds:
+                a, b = bounds[n]
+            if not (a <= ref <= b and a < b):
+                raise ValueError(f"bounds for {n} must satisfy low <= start ({ref}) <= high, "
+                                 f"got {(a, b)}")  # fmt: skip
+            lo.append((a - ref) / scale)
+            hi.append((b - ref) / scale)
+        elif bounds and n in bounds:
             a, b = bounds[n]
             if not (0 < a < ref < b):
                 raise ValueError(f"bounds for {n} must satisfy 0 < low < start ({ref}) < high, "
@@ -314,6 +348,13 @@ def _bounds(names, model, bounds):
             lo.append(math.log(fa))
             hi.append(math.log(fb))
     return np.array(lo), np.array(hi)
+
+
+def _bounds_in_units(problem, i, a, b):
+    ref, scale = float(problem.reference[i]), float(problem.scale[i])
+    if problem.linear[i]:
+        return [ref + scale * float(a), ref + scale * float(b)]
+    return [ref * math.exp(float(a)), ref * math.exp(float(b))]
 
 
 def _prepare(model, recording, params, warmup, substeps, bounds):
@@ -351,6 +392,8 @@ def _prepare(model, recording, params, warmup, substeps, bounds):
         model=model,
         measured=jnp.asarray(recording.area),
         reference=jnp.asarray([float(model.params()[n]) for n in names]),
+        scale=jnp.asarray([LINEAR.get(n, (0.0, 1.0, 0.1))[2] for n in names]),
+        linear=tuple(_is_linear(n, float(model.params()[n])) for n in names),
         s_reference=jnp.asarray(float(model.params()["S"])),
         period=jnp.asarray(period),
         s_bounds=jnp.asarray(np.exp(np.r_[s_lo, s_hi]) * float(model.params()["S"]))
@@ -554,11 +597,10 @@ def fit(
         settings={
             "params": list(params),
             "bounds": {
-                n: [
-                    float(math.exp(a)) * float(model.params()[n]),
-                    float(math.exp(b)) * float(model.params()[n]),
-                ]
-                for n, a, b in zip(problem.names, np.asarray(lower), np.asarray(upper))
+                n: _bounds_in_units(problem, i, a, b)
+                for i, (n, a, b) in enumerate(
+                    zip(problem.names, np.asarray(lower), np.asarray(upper))
+                )
             },
             "swarm_size": swarm_size,
             "iterations": iterations,
