@@ -17,7 +17,7 @@ def test_gap_is_described_in_words(shared_dir):
     )
     assert c.error_share["closed"] > 0.6  # the gap's error sits in the closed phase
     words = " ".join(c.failures())
-    assert "never falls below" in words and "closes fully" in words
+    assert "never falls below" in words and "the model closes fully" in words
     labels = [row[0] for row in c.table()]
     assert labels[:4] == ["f0", "open quotient", "speed quotient", "closing quotient"]
     assert plot_comparison(c) is not None
