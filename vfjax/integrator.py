@@ -43,7 +43,6 @@ EVENTS_PER_SECOND = 4000.0
 #: A state beyond these bounds is reported as diverged (cm, cm/s).
 _X_LIMIT = 1.0
 _V_LIMIT = 1.0e5
-UNROLL = 1
 
 
 class DenseOutput(eqx.Module):
@@ -336,7 +335,7 @@ def simulate(
     )
     body = _iteration(model, h, n_steps, x0, xc, t_c)
     n_iter = n_steps + max_events
-    end, (ts, xs, vs, codes) = jax.lax.scan(body, start, None, length=n_iter, unroll=UNROLL)
+    end, (ts, xs, vs, codes) = jax.lax.scan(body, start, None, length=n_iter)
 
     dense = DenseOutput(
         t=jnp.concatenate([start.t[None], ts]),
