@@ -263,14 +263,14 @@ def cmd_extract(args) -> int:
     import matplotlib.pyplot as plt
 
     from .io import write_recording
-    from .segmentation import video_to_recording
+    from .segmentation import frames_to_recording
     from .video import read_video
 
-    rec = video_to_recording(args.video, fps=args.fps, progress=True)
+    video, file_fps = read_video(args.video)
+    rec = frames_to_recording(video, args.fps or file_fps, source=args.video, progress=True)
     out = write_recording(
         dataclasses.replace(rec, masks=None), args.output
     )  # masks go in the figure, not the table
-    video, _ = read_video(args.video)
     i = int(np.argmax(rec.area))
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.6), gridspec_kw={"width_ratios": [1, 2.2]})
     a.imshow(video[i], cmap="gray")

@@ -574,34 +574,42 @@ def fit(
     if bar is not None:
         bar.close()
 
-    fitted, shift = _unpack(problem, best_y)
+    return _make_result(
+        problem, recording, params, best_y, best_cost,
+        pso_trace=pso_trace, lm_trace=lm_trace, trace_times=trace_times,
+        timings={"pso_s": t_pso, "lm_s": t_lm, "total_s": time.perf_counter() - t_all,
+                 "first_swarm_s": t_first, "compile_s": compile_s},
+        n_simulations=n_sims, optimistix_result=result_name, lower=lower, upper=upper,
+        swarm=(swarm_size, iterations, lm_steps, substeps, settings),
+    )  # fmt: skip
+
+
+def _make_result(
+    problem, recording, params, y, nmse, *, pso_trace, lm_trace, trace_times, timings,
+    n_simulations, optimistix_result, lower, upper, swarm,
+) -> FitResult:  # fmt: skip
+    """The `FitResult` of the fitted point ``y`` (shared by `fit` and `fit_many`)."""
+    swarm_size, iterations, lm_steps, substeps, settings = swarm
+    fitted, shift = _unpack(problem, y)
     units = fitted.parameter_units()
     values = fitted.params()
+    bounds = {n: _bounds_in_units(problem, i, a, b)
+              for i, (n, a, b) in enumerate(zip(problem.names, np.asarray(lower),
+                                                np.asarray(upper)))}  # fmt: skip
     return FitResult(
         params={n: float(values[n]) for n in params},
         units={n: units[n] for n in params},
         time_shift=shift,
-        nmse=best_cost,
-        pso_trace=pso_trace,
-        lm_trace=lm_trace,
-        trace_times=trace_times,
-        timings={
-            "pso_s": t_pso,
-            "lm_s": t_lm,
-            "total_s": time.perf_counter() - t_all,
-            "first_swarm_s": t_first,
-            "compile_s": compile_s,
-        },  # fmt: skip
-        n_simulations=int(n_sims),
-        optimistix_result=result_name,
+        nmse=float(nmse),
+        pso_trace=list(pso_trace),
+        lm_trace=list(lm_trace),
+        trace_times=list(trace_times),
+        timings=timings,
+        n_simulations=int(n_simulations),
+        optimistix_result=optimistix_result,
         settings={
             "params": list(params),
-            "bounds": {
-                n: _bounds_in_units(problem, i, a, b)
-                for i, (n, a, b) in enumerate(
-                    zip(problem.names, np.asarray(lower), np.asarray(upper))
-                )
-            },
+            "bounds": bounds,
             "swarm_size": swarm_size,
             "iterations": iterations,
             "lm_steps": lm_steps,
@@ -713,31 +721,30 @@ def fit_many(
     t_lm = time.perf_counter() - t1
     lm_traces = np.stack(lm_traces, axis=1)
 
-    out = []
-    for i, (rec, problem) in enumerate(zip(recordings, problems)):
-        fitted, shift_i = _unpack(problem, best_y[i])
-        values, units = fitted.params(), fitted.parameter_units()
-        out.append(FitResult(
-            params={n: float(values[n]) for n in params},
-            units={n: units[n] for n in params},
-            time_shift=shift_i,
-            nmse=float(best_cost[i]),
+    trace_times = np.r_[np.linspace(0, t_pso, pso_traces.shape[1]),
+                        t_pso + np.linspace(0, t_lm, lm_traces.shape[1])].tolist()  # fmt: skip
+    timings = {"pso_s": t_pso, "lm_s": t_lm, "total_s": time.perf_counter() - t_all,
+               "batch_size": len(recordings)}  # fmt: skip
+    n_sims = swarm_size * (1 + iterations) + n_lm * (1 + best_y.shape[1])
+    return [
+        _make_result(
+            problem,
+            rec,
+            params,
+            best_y[i],
+            best_cost[i],
             pso_trace=pso_traces[i].tolist(),
             lm_trace=lm_traces[i].tolist(),
-            trace_times=(np.r_[np.linspace(0, t_pso, pso_traces.shape[1]),
-                               t_pso + np.linspace(0, t_lm, lm_traces.shape[1])]).tolist(),
-            timings={"pso_s": t_pso, "lm_s": t_lm, "total_s": time.perf_counter() - t_all,
-                     "batch_size": len(recordings)},
-            n_simulations=int(swarm_size * (1 + iterations) + n_lm * (1 + best_y.shape[1])),
+            trace_times=trace_times,
+            timings=timings,
+            n_simulations=n_sims,
             optimistix_result=results[i],
-            settings={"params": list(params), "swarm_size": swarm_size,
-                      "iterations": iterations, "lm_steps": lm_steps, "warmup": problem.warmup,
-                      "max_time_shift": problem.max_time_shift, "substeps": substeps,
-                      "fps": rec.fps, "n_frames": rec.n_frames, "pso": settings._asdict()},
-            model=fitted,
-            recording_name=rec.name,
-        ))  # fmt: skip
-    return out
+            lower=lowers[i],
+            upper=uppers[i],
+            swarm=(swarm_size, iterations, lm_steps, substeps, settings),
+        )  # fmt: skip
+        for i, (rec, problem) in enumerate(zip(recordings, problems))
+    ]
 
 
 @eqx.filter_jit

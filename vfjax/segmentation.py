@@ -165,17 +165,23 @@ def segment_video(
 def video_to_recording(path, fps: float | None = None, **kwargs):
     """Read a video and segment it: a `Recording` of the glottal area (pixels) with its
     masks. ``fps`` (Hz) is required when the file does not store it."""
-    import pathlib
-
-    from .recording import Recording
     from .video import read_video
 
     video, file_fps = read_video(path)
-    fps = fps or file_fps
+    return frames_to_recording(video, fps or file_fps, source=path, **kwargs)
+
+
+def frames_to_recording(video, fps: float | None, source="video", **kwargs):
+    """Segment frames already in memory: a `Recording` of the glottal area (pixels) with its
+    masks; ``source`` (a path or a label) names it."""
+    import pathlib
+
+    from .recording import Recording
+
     if fps is None:
-        raise ValueError(f"{path}: the frame rate is not in the file; give fps")
+        raise ValueError(f"{source}: the frame rate is not in the file; give fps")
     seg = segment_video(video, **kwargs)
-    meta = {"source": str(pathlib.Path(path).name), "roi": list(map(int, seg.roi)),
-            "threshold": seg.threshold}  # fmt: skip
+    source = pathlib.Path(source)
+    meta = {"source": source.name, "roi": list(map(int, seg.roi)), "threshold": seg.threshold}
     return Recording(area=seg.area, fps=float(fps), unit="px", metadata=meta,
-                     name=pathlib.Path(path).stem, masks=seg.masks)  # fmt: skip
+                     name=source.stem, masks=seg.masks)  # fmt: skip
