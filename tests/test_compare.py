@@ -33,8 +33,14 @@ def test_perfect_fit_reports_no_failure():
     assert c.failures()[0].startswith("no clear failure")
 
 
-def test_noise_level_of_white_noise():
+def test_noise_level_of_white_noise_beside_a_misfit():
+    """White noise of 2 units on a GAW-like wave fitted with a slightly wrong phase and
+    amplitude: the estimate sees the noise, not the (smooth) misfit."""
     rng = np.random.default_rng(0)
     t = np.arange(2000) / 4000.0
-    area = 100 + 50 * np.sin(2 * np.pi * 20 * t) + rng.normal(0, 2.0, t.size)
-    assert abs(noise_level(area) - 2.0) < 0.15
+    truth = 200 + 150 * np.sin(2 * np.pi * 130 * t)
+    fitted = 200 + 140 * np.sin(2 * np.pi * 130 * t + 0.05)
+    area = truth + rng.normal(0, 2.0, t.size)
+    assert abs(noise_level(area, fitted) - 2.0) < 0.15
+    # the misfit alone is no noise
+    assert noise_level(truth, fitted) < 0.3

@@ -9,21 +9,25 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from . import compare, descriptors, diagnose, phases, segmentation, units, video  # noqa: E402
+from . import compare, descriptors, diagnosis, phases, report, segmentation, units, video  # noqa: E402
 from .cost import nmse  # noqa: E402
+from .diagnosis import Candidate, Diagnosis, diagnose, score_tests  # noqa: E402
 from .fit import FitResult, fit, fit_many, initial_model  # noqa: E402
 from .integrator import DEFAULT_SUBSTEPS, DenseOutput, Simulation, simulate  # noqa: E402
 from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, paper_model, preset  # noqa: E402
 from .recording import Recording, load_recording  # noqa: E402
 from .subject import Subject  # noqa: E402
+from .workflow import Investigation, investigate  # noqa: E402
 from .terms import (  # noqa: E402
     AbstractForce,
+    AbstractHoldVariability,
     AbstractObservation,
     AbstractPressure,
     AbstractTerm,
     BernoulliForce,
     ClosureHold,
+    ClosureJitter,
     Context,
     CubicStiffness,
     Elastic,
@@ -39,18 +43,21 @@ __version__ = "0.1.0"
 __all__ = [
     "compare",
     "descriptors",
-    "diagnose",
+    "diagnosis",
+    "report",
     "segmentation",
     "video",
     "initial_model",
     "DEFAULT_SUBSTEPS",
     "PRESETS",
     "AbstractForce",
+    "AbstractHoldVariability",
     "AbstractObservation",
     "AbstractPressure",
     "AbstractTerm",
     "BernoulliForce",
     "ClosureHold",
+    "ClosureJitter",
     "Context",
     "CubicStiffness",
     "GlottalGap",
@@ -65,6 +72,12 @@ __all__ = [
     "Subject",
     "TanhDamping",
     "VocalFoldModel",
+    "Candidate",
+    "Diagnosis",
+    "Investigation",
+    "diagnose",
+    "investigate",
+    "score_tests",
     "fit",
     "fit_many",
     "load_recording",

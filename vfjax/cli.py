@@ -1,4 +1,5 @@
-"""Command line: ``vfjax run`` (the main job on embedded data) and ``vfjax simulate``."""
+"""Command line: ``vfjax run`` (the main job on embedded data), ``fit``, ``diagnose``,
+``extract`` and ``simulate``."""
 
 import argparse
 import dataclasses
@@ -140,98 +141,70 @@ def _fit_and_report(recording, model, out, params, iterations, key_seed):
 
 
 def _diagnosis_section(out):
-    """Fit the gap demo recording, say where the model fails, test the candidate effects,
-    add the best one and refit; returns the report's Markdown lines."""
-    import matplotlib.pyplot as plt
-
-    from .compare import compare, plot_comparison
+    """Fit, diagnose and extend on the embedded hidden-gap recording; writes its report to
+    ``out/diagnosis/report.md`` and returns the main report's Markdown lines."""
     from .datasets import demo_recording
-    from .diagnose import extend, score_tests
-    from .fit import initial_model
     from .io import write_recording
-    from .plotting import plot_convergence
-    from .terms.effects import CubicStiffness, GlottalGap, MucosalDelay
+    from .report import write_report
+    from .terms.effects import GlottalGap
+    from .workflow import investigate
 
     rec = demo_recording("N3", effect=GlottalGap(a_gap=0.008), name_suffix="_gap")
     write_recording(rec, out / f"{rec.name}.csv")
-    start = initial_model(rec, template="N4")
-    before = _fit_and_report(rec, start, out, ("S", "K", "C_f", "t_c"), 60, 0)
-    c0 = compare(before, rec)
-    fig = plot_comparison(c0, f"{rec.name}: the paper's model")
-    fig.savefig(out / f"{rec.name}_compare.png", dpi=110)
-    plt.close(fig)
-    tested = ("GlottalGap", "CubicStiffness", "MucosalDelay")
-    scores, level = score_tests(before, rec, effects=tested)
-    lines = [
+    study = investigate(rec, progress=True)
+    path = write_report(study, rec, out / "diagnosis",
+                        title=f"vfjax diagnosis of the embedded recording {rec.name}")  # fmt: skip
+    added = study.added
+    print(f"diagnosis: added {added or 'nothing'}; NMSE {study.first.nmse:.3e} -> "
+          f"{study.final.nmse:.3e}; report {path}")  # fmt: skip
+    values = {n: v for n, v in study.final.params.items() if n not in study.first.params}
+    return [
         "## Fit, diagnose, extend: the embedded gap recording",
         "",
         f"`{rec.name}.csv` is made by vfjax: subject N3 with a hidden posterior gap of "
-        "0.008 cm², 2 px noise, starting at an arbitrary point of the cycle. The paper's model "
-        f"is fitted (S, K, C_f, t_c) from subject N4's values: NMSE {before.nmse:.3e}.",
+        "0.008 cm² (`GlottalGap`), 2 px noise. vfjax fits the paper's model, compares it with "
+        "the measurement, tests every catalogue effect (score test + quick refit), adds the "
+        "one that is needed and refits.",
         "",
-        "### Where the model fails",
+        f"- paper's model: NMSE {study.first.nmse:.3%}",
+        f"- effects added: {', '.join(added) if added else 'none'}",
+        f"- final NMSE: {study.final.nmse:.3%}"
+        + (" (" + ", ".join(f"{n} = {v:.4g}" for n, v in values.items()) + ")" if values else ""),
+        f"- conclusion: {study.rounds[-1].diagnosis.verdict}",
         "",
-        *[f"- {w}" for w in c0.failures()],
+        "Full report with figures: [diagnosis/report.md](diagnosis/report.md).",
         "",
-        "| descriptor | measured | model |",
-        "|---|---|---|",
-        *[f"| {lab} | {a:.4g} {u} | {b:.4g} {u} |" for lab, a, b, u in c0.table()],
-        "",
-        f"![comparison]({rec.name}_compare.png)",
-        "",
-        "### Which effect is missing (score tests at the off-values)",
-        "",
-        f"Significance level per effect: {level:.1e} (1 % over {len(scores)} effects).",
-        "",
-        "| rank | effect | statistic | p-value | significant |",
-        "|---|---|---|---|---|",
-    ]
-    for i, sc in enumerate(scores):
-        flag = "yes" if sc.p_value < level else "no"
-        lines.append(f"| {i + 1} | {sc.effect} | {sc.statistic:.1f} | {sc.p_value:.2e} | {flag} |")
-    lines.append("")
-    classes = {"GlottalGap": GlottalGap, "CubicStiffness": CubicStiffness,
-               "MucosalDelay": MucosalDelay}  # fmt: skip
-    best = scores[0] if scores and scores[0].p_value < level else None
-    if best is None:
-        lines += ["No catalogue effect is significant: the model is not extended.", ""]
-        print("diagnosis: no significant effect")
-        return lines
-    after = extend(before, rec, classes[best.effect]())
-    c1 = compare(after, rec)
-    fig, axes = plt.subplots(1, 2, figsize=(12, 3.4))
-    axes[0].bar(["paper model", f"+ {best.effect}"], [before.nmse, after.nmse],
-                color=["#adb5bd", "#2a9d8f"])  # fmt: skip
-    axes[0].set_ylabel("NMSE")
-    axes[0].set_yscale("log")
-    plot_convergence(after, ax=axes[1])
-    fig.tight_layout()
-    fig.savefig(out / f"{rec.name}_extend.png", dpi=110)
-    plt.close(fig)
-    added = {n: v for n, v in after.params.items() if n not in before.params}
-    header = " | ".join(added)
-    lines += [
-        f"### Adding {best.effect}",
-        "",
-        f"| model | NMSE | {header} |",
-        "|---|---|" + "---|" * len(added),
-        f"| paper | {before.nmse:.3e} | " + " | ".join("0" for _ in added) + " |",
-        f"| + {best.effect} | {after.nmse:.3e} | "
-        + " | ".join(f"{v:.4g} {after.units[n]}" for n, v in added.items())
-        + " |",
-        "",
-        "Where it still fails:",
-        "",
-        *[f"- {w}" for w in c1.failures()],
-        "",
-        f"![error before and after, and the refit's convergence]({rec.name}_extend.png)",
+        "![rounds](diagnosis/" + f"{rec.name}_rounds.png)",
         "",
     ]
-    print(
-        f"diagnosis: {best.effect} (p {best.p_value:.1e}); NMSE {before.nmse:.3e} -> "
-        f"{after.nmse:.3e}; " + ", ".join(f"{n} {v:.4g}" for n, v in added.items())
-    )
-    return lines
+
+
+def cmd_diagnose(args) -> int:
+    """Fit, diagnose, extend (up to --rounds effects) and write the report."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from .fit import initial_model
+    from .recording import load_contours, load_recording
+    from .report import write_report
+    from .workflow import investigate
+
+    path = pathlib.Path(args.recording)
+    if path.suffix == ".txt":
+        if not args.fps:
+            raise ValueError(f"{path.name}: a contour file carries no frame rate; give --fps")
+        rec = load_contours(path, args.fps)
+    else:
+        rec = load_recording(path)
+    model = initial_model(rec, template=args.start)
+    study = investigate(rec, model, tuple(args.params), rounds=args.rounds, alpha=args.alpha,
+                        iterations=args.iterations, progress=True)  # fmt: skip
+    out = pathlib.Path(args.out)
+    report = write_report(study, rec, out)
+    study.final.to_json(out / f"{rec.name}_final_fit.json")
+    print(f"{rec.name}: {study.rounds[-1].diagnosis.verdict}")
+    print(f"wrote {report} and its figures")
+    return 0
 
 
 def cmd_fit(args) -> int:
@@ -328,6 +301,19 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--iterations", type=int, default=60, help="PSO iterations")
     f.add_argument("--seed", type=int, default=0, help="PRNG seed")
     f.set_defaults(func=cmd_fit)
+
+    dg = sub.add_parser("diagnose", help="fit, find the missing effect, extend, write a report")
+    dg.add_argument("recording", help="GAW table + .json sidecar, or a *_segdata.txt contour "
+                    "file (with --fps)")  # fmt: skip
+    dg.add_argument("--out", default="vfjax_diagnosis", help="report folder (default: %(default)s)")
+    dg.add_argument("--fps", type=float, help="frame rate, Hz (contour files)")
+    dg.add_argument("--params", nargs="+", default=["S", "K", "C_f", "t_c"],
+                    help="parameters of the first fit (default: %(default)s)")  # fmt: skip
+    dg.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from")
+    dg.add_argument("--rounds", type=int, default=2, help="most effects to add (default: 2)")
+    dg.add_argument("--alpha", type=float, default=0.01, help="significance level")
+    dg.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+    dg.set_defaults(func=cmd_diagnose)
 
     ex = sub.add_parser("extract", help="glottal area waveform from a high-speed video")
     ex.add_argument("video", help=".tif/.tiff, .npy, .cih/.cihx (+.mraw), .avi or .mp4")

@@ -2,9 +2,11 @@
 
 import numpy as np
 
+from .descriptors import fundamental_frequency
 from .integrator import simulate
 from .presets import preset
 from .recording import Recording
+from .terms.variability import ClosureJitter
 
 
 def demo_recording(
@@ -15,19 +17,38 @@ def demo_recording(
     n_frames: int = 201,
     effect=None,
     name_suffix: str = "",
+    jitter: float = 0.0,
+    model=None,
 ) -> Recording:
     """A GAW of the paper's subject ``name`` simulated by vfjax, as a camera would see it.
 
     Sampled from 27.7 ms after the onset (an arbitrary point of the cycle), with Gaussian
     noise of ``noise_px`` pixels (seeded), rounded to whole pixels and clipped at zero.
-    ``effect``: a term hidden in the model (e.g. ``GlottalGap(a_gap=0.008)``).
+
+    Arguments:
+        name: the preset (N1-N4).
+        noise_px: standard deviation of the measurement noise (px).
+        seed: seed of the noise and the jitter.
+        fps, n_frames: frame rate (Hz) and number of frames.
+        effect: a term hidden in the model (e.g. ``GlottalGap(a_gap=0.008)``).
+        name_suffix: appended to the recording's name.
+        jitter: cycle-to-cycle variability: relative standard deviation of the closure
+            duration per cycle (`ClosureJitter`), e.g. 0.003.
+        model: the model to simulate instead of the preset (its subject's sex is taken
+            from ``name``).
     """
-    model = preset(name) if effect is None else preset(name).with_effect(effect)
+    model = preset(name) if model is None else model
+    if effect is not None:
+        model = model.with_effect(effect)
+    if jitter > 0 and model.closure_duration is not None:
+        f0 = fundamental_frequency(np.asarray(simulate(model, fps, 400, t_start=0.02).area), fps)
+        model = model.with_term(ClosureJitter.random(jitter, 1.0 / f0, seed=seed + 1))
     sim = simulate(model, fps, n_frames, t_start=0.0277)
     rng = np.random.default_rng(seed)
     area = np.asarray(sim.area) + rng.normal(0.0, noise_px, n_frames)
     area = np.clip(np.round(area), 0.0, None)
     meta = {"sex": "male" if name in ("N1", "N2") else "female", "source": "vfjax demo",
             "subject": name, "noise_px": noise_px, "seed": seed,
-            "hidden_effect": None if effect is None else type(effect).__name__}  # fmt: skip
+            "hidden_effect": None if effect is None else type(effect).__name__,
+            "closure_jitter_rel": jitter}  # fmt: skip
     return Recording(area=area, fps=fps, unit="px", metadata=meta, name=f"demo_{name}{name_suffix}")

@@ -56,6 +56,17 @@ LINEAR = {
     "t_c": (0.0, 0.01, 1e-3),
     "C_min": (0.0, 500.0, 50.0),
 }
+
+
+def search_range(model: VocalFoldModel, name: str) -> tuple[float, float, float] | None:
+    """(low, high, scale) of a linearly searched parameter: the term's own ``ranges`` entry,
+    else `LINEAR`'s, else None."""
+    for term in model.terms:
+        if name in term.parameters and name in getattr(term, "ranges", {}):
+            return tuple(float(v) for v in term.ranges[name])
+    return LINEAR.get(name)
+
+
 _SHIFT_GRID = 0.005  # s
 _SHIFT_GRID_POINTS = 48  # shifts tried per particle (about one frame apart)
 _DEFAULT_SWARM = SwarmSettings()
@@ -136,6 +147,7 @@ class _Problem(eqx.Module):
     measured: jax.Array  # (frames,)
     reference: jax.Array  # (n_params,) starting values of the non-S fitted parameters
     scale: jax.Array  # (n_params,) coordinate scale of the linear ones (unused for log ones)
+    floor: jax.Array  # (n_params,) physical lower limit of the linear ones (-inf: none)
     s_reference: jax.Array  # () starting (or fixed) S
     period: jax.Array  # () T0 estimate (s)
     s_bounds: jax.Array  # (2,) search bounds of S (px/mm²)
@@ -149,8 +161,10 @@ class _Problem(eqx.Module):
     substeps: int = eqx.field(static=True)
 
     def model_at(self, z, log_s=None):
+        # linear coordinates of parameters that cannot be negative (a gap, a delay) are held
+        # at zero from below, so that an unconstrained LM step stays physical
         values = {
-            n: self.reference[i] + self.scale[i] * z[i]
+            n: jnp.maximum(self.reference[i] + self.scale[i] * z[i], self.floor[i])
             if lin
             else self.reference[i] * jnp.exp(z[i])
             for i, (n, lin) in enumerate(zip(self.names, self.linear))
@@ -227,9 +241,11 @@ def estimate_closure_duration(recording: Recording, levels=(0.1, 0.2)) -> float 
 
     For each closed phase, the times at which the area falls through and rises back through
     ``levels`` (fractions of the peak) are located to a fraction of a frame, and the width of
-    the closed phase is extrapolated linearly to zero level: ``2 w(L1) - w(L2)``. The
-    median over the complete closed phases is returned. The paper takes t_c from the measured
-    GAW; this gives it without the bias of counting frames under a threshold.
+    the closed phase is extrapolated linearly to zero level: ``2 w(L1) - w(L2)``. The longest
+    complete closed phase is returned: the hold lasts t_c in every cycle that closes fully,
+    while cycles that barely close (a modulated pressure, a gap) give shorter ones. The paper
+    takes t_c from the measured GAW; this gives it without the bias of counting frames under
+    a threshold.
     """
     a = recording.area
     peak = a.max()
@@ -266,7 +282,7 @@ def estimate_closure_duration(recording: Recording, levels=(0.1, 0.2)) -> float 
             widths.append(2 * w[0] - w[1])
     if not widths:
         return None
-    return float(np.median(widths)) / recording.fps
+    return float(np.max(widths)) / recording.fps
 
 
 def initial_model(recording: Recording, template: str | None = None) -> VocalFoldModel:
@@ -318,8 +334,9 @@ def match_fundamental_frequency(model: VocalFoldModel, recording: Recording, ste
     return model.set(K=k1) if np.isfinite(f0_of(k1)) else model
 
 
-def _is_linear(name, ref):
-    return name in LINEAR and (ref == 0.0 or name not in ("t_c", "C_min")) or ref == 0.0
+def _is_linear(model, name, ref):
+    ranged = search_range(model, name) is not None
+    return ranged and (ref == 0.0 or name not in ("t_c", "C_min")) or ref == 0.0
 
 
 def _bounds(names, model, bounds):
@@ -327,8 +344,8 @@ def _bounds(names, model, bounds):
     lo, hi = [], []
     for n in names:
         ref = float(params[n])
-        if _is_linear(n, ref):
-            a, b, scale = LINEAR.get(n, (0.0, 1.0, 0.1))
+        if _is_linear(model, n, ref):
+            a, b, scale = search_range(model, n) or (0.0, 1.0, 0.1)
             if bounds and n in bounds:
                 a, b = bounds[n]
             if not (a <= ref <= b and a < b):
@@ -392,8 +409,11 @@ def _prepare(model, recording, params, warmup, substeps, bounds):
         model=model,
         measured=jnp.asarray(recording.area),
         reference=jnp.asarray([float(model.params()[n]) for n in names]),
-        scale=jnp.asarray([LINEAR.get(n, (0.0, 1.0, 0.1))[2] for n in names]),
-        linear=tuple(_is_linear(n, float(model.params()[n])) for n in names),
+        scale=jnp.asarray([(search_range(model, n) or (0.0, 1.0, 0.1))[2] for n in names]),
+        floor=jnp.asarray(
+            [0.0 if (search_range(model, n) or (-1.0,))[0] >= 0 else -jnp.inf for n in names]
+        ),  # fmt: skip
+        linear=tuple(_is_linear(model, n, float(model.params()[n])) for n in names),
         s_reference=jnp.asarray(float(model.params()["S"])),
         period=jnp.asarray(period),
         s_bounds=jnp.asarray(np.exp(np.r_[s_lo, s_hi]) * float(model.params()["S"]))
@@ -639,7 +659,7 @@ def _result_name(result, index=None) -> str:
 
 
 def fit_many(
-    model: VocalFoldModel,
+    model: VocalFoldModel | Sequence[VocalFoldModel],
     recordings: Sequence[Recording],
     params: Sequence[str] = ("S", "K", "C_f"),
     *,
@@ -660,12 +680,20 @@ def fit_many(
 
     Every PSO iteration simulates all particles of all recordings in one vmapped call, and the
     LM polish steps all recordings together. The recordings must share frame rate, frame count
-    and area unit. Arguments as for `fit`; returns one `FitResult` per recording (timings are
-    those of the whole batch).
+    and area unit. ``model`` is one model for all, or one model per recording (of one
+    structure: the same terms; e.g. several starting points for one recording). Other
+    arguments as for `fit`; returns one `FitResult` per recording (timings are those of the
+    whole batch).
     """
     recordings = list(recordings)
     if not recordings:
         raise ValueError("recordings is empty")
+    models = [model] * len(recordings) if isinstance(model, VocalFoldModel) else list(model)
+    if len(models) != len(recordings):
+        raise ValueError(f"got {len(models)} models for {len(recordings)} recordings")
+    structure = jax.tree.structure(models[0])
+    if any(jax.tree.structure(m) != structure for m in models[1:]):
+        raise ValueError("fit_many's models must share one structure (the same terms)")
     first = recordings[0]
     for r in recordings[1:]:
         if (r.fps, r.n_frames, r.unit) != (first.fps, first.n_frames, first.unit):
@@ -673,7 +701,9 @@ def fit_many(
                              f"{r.name} differs from {first.name}")  # fmt: skip
     t_all = time.perf_counter()
     key = jax.random.key(0) if key is None else key
-    prepared = [_prepare(model, r, params, warmup, substeps, bounds) for r in recordings]
+    prepared = [
+        _prepare(m, r, params, warmup, substeps, bounds) for m, r in zip(models, recordings)
+    ]
     shift = max(p.max_time_shift for p, _, _, _ in prepared)
     problems = [dataclasses.replace(p, max_time_shift=shift) for p, _, _, _ in prepared]
     lowers = jnp.stack([lo for _, lo, _, _ in prepared])

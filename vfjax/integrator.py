@@ -186,9 +186,9 @@ def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc):
     return event, theta, xe, ve, is_flow, is_inner, is_dir
 
 
-def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, t_c):
+def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc):
     """One scan iteration: a full grid step, a step up to an event, or a stretch of hold."""
-    has_hold = t_c is not None
+    has_hold = model.closure_duration is not None
 
     def body(c: _Carry, _):
         active = (c.step < n_steps) & ~c.diverged
@@ -211,7 +211,9 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, t_c):
             t=jnp.where(event, c.t + theta * dt, t_target),
             x=jnp.where(event, xe, x1),
             v=jnp.where(event, ve, v1),
-            hold_left=jnp.where(starts_hold, t_c if has_hold else 0.0, c.hold_left),
+            hold_left=jnp.where(starts_hold, model.hold_duration(c.t + theta * dt), c.hold_left)
+            if has_hold
+            else c.hold_left,
             step=jnp.where(event, c.step, c.step + 1),
             flow=flow & ~starts_hold,
             inner=inner | starts_hold,
@@ -315,7 +317,6 @@ def simulate(
         max_events = int(EVENTS_PER_SECOND * horizon) + 16
     x0 = model.contact_displacement
     xc = model.subcritical_displacement()
-    t_c = model.closure_duration
 
     x_init = x0 if initial_displacement is None else jnp.asarray(initial_displacement, float)
     v_init = jnp.asarray(initial_velocity, dtype=float)
@@ -333,7 +334,7 @@ def simulate(
         diverged=jnp.zeros((), bool),
         n_events=jnp.zeros((), jnp.int32),
     )
-    body = _iteration(model, h, n_steps, x0, xc, t_c)
+    body = _iteration(model, h, n_steps, x0, xc)
     n_iter = n_steps + max_events
     end, (ts, xs, vs, codes) = jax.lax.scan(body, start, None, length=n_iter)
 

@@ -10,6 +10,7 @@ from ._validate import as_float, check_positive
 from .subject import Subject
 from .terms.base import (
     AbstractForce,
+    AbstractHoldVariability,
     AbstractObservation,
     AbstractPressure,
     AbstractTerm,
@@ -146,6 +147,15 @@ class VocalFoldModel(eqx.Module):
         """t_c (s) of the closure hold, or None when the model has no hold."""
         hold = self.term(ClosureHold)
         return None if hold is None else hold.t_c
+
+    def hold_duration(self, t: ArrayLike) -> Array:
+        """Length (s) of a closure hold that starts at time ``t`` (s): t_c, times the factors
+        of any `AbstractHoldVariability` term (cycle-to-cycle variability)."""
+        duration = self.closure_duration
+        for term in self.terms:
+            if isinstance(term, AbstractHoldVariability):
+                duration = duration * term.factor(t)
+        return duration
 
     def pressure(self, t: ArrayLike) -> Array:
         """Subglottal pressure (dyne/cm²) at time ``t`` (s), after the pressure terms."""

@@ -3,10 +3,12 @@
 - `base`: the abstract kinds of term and the `Context` they read.
 - `paper`: the five terms of the seed paper's model.
 - `effects`: candidate effects the paper's model lacks (MODEL_SPEC.md's catalogue).
+- `variability`: cycle-to-cycle variability (closure-duration jitter).
 """
 
 from .base import (
     AbstractForce,
+    AbstractHoldVariability,
     AbstractObservation,
     AbstractPressure,
     AbstractTerm,
@@ -14,9 +16,11 @@ from .base import (
 )
 from .effects import CATALOGUE, CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
 from .paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
+from .variability import ClosureJitter
 
 __all__ = [
     "AbstractForce",
+    "AbstractHoldVariability",
     "AbstractObservation",
     "AbstractPressure",
     "AbstractTerm",
@@ -27,6 +31,7 @@ __all__ = [
     "MucosalDelay",
     "PressureModulation",
     "ClosureHold",
+    "ClosureJitter",
     "Context",
     "Elastic",
     "FlowSeparation",

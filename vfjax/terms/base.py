@@ -6,6 +6,8 @@ of four kinds, told apart by which abstract class it derives from:
 - `AbstractForce`: adds a force (dyne) on one fold to the equation of motion.
 - `AbstractPressure`: transforms the subglottal pressure as a function of time.
 - `AbstractObservation`: transforms the glottal area that the camera sees.
+- `AbstractHoldVariability`: scales the length of each closure hold (cycle-to-cycle
+  variability).
 - `ClosureHold` (in `paper.py`): the discrete closure hold, handled by the integrator.
 
 Every term class lists the user-facing names of its parameters in ``parameters``, a mapping
@@ -27,6 +29,19 @@ class AbstractTerm(eqx.Module):
     #: The parameter values that switch the term off while keeping it in the model
     #: (used by the diagnosis's score test); empty when removing the term is the only way.
     off_values: ClassVar[dict[str, float]] = {}
+    #: Diagnosis settings (see `vfjax.diagnose`): whether the off-value is a boundary (a
+    #: gap, a delay, a strength >= 0; the score test is then one-sided) ...
+    one_sided: ClassVar[bool] = False
+    #: ... settings of the parameters that do not exist at the off-value, searched by the
+    #: score test (e.g. a modulation's frequency) ...
+    score_grid: ClassVar[tuple[dict[str, float], ...]] = ({},)
+    #: ... settings whose columns are tested together (e.g. a sine and a cosine phase) ...
+    score_directions: ClassVar[tuple[dict[str, float], ...]] = ({},)
+    #: ... and where the derivatives are taken, if not exactly at the off-values.
+    score_point: ClassVar[dict[str, float]] = {}
+    #: Search range ``(low, high, scale)`` of parameters fitted in linear coordinates (those
+    #: starting at an off-value of 0), in the parameter's unit; see `vfjax.fit.search_range`.
+    ranges: ClassVar[dict[str, tuple[float, float, float]]] = {}
 
 
 class Context(eqx.Module):
@@ -105,4 +120,12 @@ class AbstractObservation(AbstractTerm):
                 the integrator's dense output.
             length: vocal-fold length l (cm).
         """
+        raise NotImplementedError
+
+
+class AbstractHoldVariability(AbstractTerm):
+    """A factor on the length of each closure hold, by the time the hold starts."""
+
+    def factor(self, t: ArrayLike) -> Array:
+        """Factor (dimensionless) on t_c for a hold starting at time ``t`` (s)."""
         raise NotImplementedError

@@ -11,6 +11,7 @@ so that it can sit in a model at its off-value (for a score test) or be fitted.
 - `MucosalDelay`: the visible area uses min(x(t), x(t - tau)), forces use x(t); off at tau = 0.
 """
 
+import math
 from collections.abc import Callable
 from typing import ClassVar
 
@@ -33,6 +34,7 @@ class GlottalGap(AbstractObservation):
     a_gap: ArrayLike = eqx.field(default=0.0, converter=as_float)
     parameters: ClassVar = {"a_gap": ("a_gap", "cm²")}
     off_values: ClassVar = {"a_gap": 0.0}
+    one_sided: ClassVar = True
 
     def __check_init__(self):
         check_nonnegative("a_gap (glottal gap area)", self.a_gap, "cm²")
@@ -75,6 +77,10 @@ class PressureModulation(AbstractPressure):
     phi: ArrayLike = eqx.field(default=0.0, converter=as_float)
     parameters: ClassVar = {"a_pm": ("a_pm", "1"), "f_m": ("f_m", "Hz"), "phi": ("phi", "rad")}
     off_values: ClassVar = {"a_pm": 0.0}
+    # f_m and phi do not exist at a = 0: the score test searches f_m on a grid and tests the
+    # sine and cosine phases together (2 degrees of freedom)
+    score_grid: ClassVar = tuple({"f_m": float(f)} for f in range(2, 21))
+    score_directions: ClassVar = ({"phi": 0.0}, {"phi": 0.5 * math.pi})
 
     def __check_init__(self):
         check_in_range("a_pm (modulation depth)", self.a_pm, 0.0, 1.0)
@@ -96,6 +102,9 @@ class MucosalDelay(AbstractObservation):
     tau: ArrayLike = eqx.field(default=0.0, converter=as_float)
     parameters: ClassVar = {"tau": ("tau", "s")}
     off_values: ClassVar = {"tau": 0.0}
+    one_sided: ClassVar = True
+    # min(x(t), x(t - tau)) is not differentiable at tau = 0: take the one-sided derivative
+    score_point: ClassVar = {"tau": 1e-9}
     needs_history: ClassVar[bool] = True
 
     def __check_init__(self):

@@ -135,6 +135,7 @@ class FlowSeparation(AbstractForce):
     fs_strength: ArrayLike = eqx.field(default=1.0, converter=as_float)
     parameters: ClassVar = {"fs_strength": ("fs_strength", "1")}
     off_values: ClassVar = {"fs_strength": 0.0}
+    one_sided: ClassVar = True
 
     def __check_init__(self):
         check_nonnegative("fs_strength (flow-separation strength)", self.fs_strength)
@@ -161,6 +162,7 @@ class ClosureHold(AbstractTerm):
     parameters: ClassVar = {"t_c": ("t_c", "s")}
     #: a hold of zero length leaves the motion unchanged: the hold's off-value
     off_values: ClassVar = {"t_c": 0.0}
+    one_sided: ClassVar = True
 
     def __check_init__(self):
         check_nonnegative("t_c (closure duration)", self.t_c, "s")

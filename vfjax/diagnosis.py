@@ -1,0 +1,692 @@
+"""Which physical effect is missing? Score tests and quick refits from a fit.
+
+`diagnose` takes a fit of a model to a recording and asks, for each candidate effect (the
+catalogue of `MODEL_SPEC.md`, the paper's own FlowSeparation and ClosureHold when switched
+off, or a user's own term), two questions:
+
+1. **Score (Lagrange-multiplier) test**, from the current fit alone. The effect is added at
+   its off-value; the residual r (measured minus fitted GAW) is tested against the GAW's
+   sensitivities J_e to the effect's parameters, with the sensitivities J_f to the fitted
+   parameters (and the time shift) projected out. With M = I - J_f (J_f' J_f)^-1 J_f',
+
+       u = J_e' M r,    LM = u' V^-1 u,    V = Var(u),
+
+   asymptotically chi-square with as many degrees of freedom as columns in J_e. Residuals of
+   a GAW are not independent (cycle-to-cycle variability leaves a misfit that is correlated
+   within a cycle), so V is by default a heteroscedasticity- and autocorrelation-consistent
+   (Newey-West, Bartlett kernel, one glottal period of bandwidth) estimate,
+   V = sum_l w_l sum_t h_t h_{t-l}', h_t = (M J_e)_t r_t; ``variance="iid"`` gives the textbook
+   s² J_e' M J_e. An effect whose off-value is a boundary (a gap, a delay, a strength >= 0)
+   gets the one-sided test z = u / sqrt(V). Parameters that do not exist at the off-value
+   (a modulation's frequency) are searched on the term's ``score_grid``, the largest statistic
+   is kept and its p-value is Bonferroni-corrected over the grid; columns that belong
+   together (a modulation's sine and cosine phase) are tested jointly (``score_directions``).
+
+2. **Quick refit**: the model with the effect is refitted, warm-started from the current fit
+   and from the score test's one-step estimate of the effect's parameters (a few starts,
+   simulated as one batch with `vfjax.fit_many`), giving the error each effect would reach.
+
+An effect is *needed* when the evidence is significant at ``alpha`` (Bonferroni-corrected
+over the candidates; the evidence is twice the smaller p-value of the score test and of an F
+test of the refit's error fall, on the residual's effective number of independent frames),
+and its refit removes at least ``min_fall`` of the squared error, and more than half the
+noise floor's worth of it (the NMSE white measurement noise alone leaves, `noise_level`):
+a few extra parameters fitted to noise and cycle-to-cycle jitter remove less. Falls are
+measured from a control refit of the model without any effect, done the same way, so that a
+refit that merely finds a better optimum of the fitted model does not count.
+Candidates are ranked by the error their refit reaches (by p-value without refits). When no
+effect is needed, or the best one explains little of the misfit, `Diagnosis.verdict` says so
+in words, with where the model fails (`vfjax.compare`).
+"""
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import stats
+
+from .compare import Comparison, compare, noise_level
+from .fit import FitResult, fit_many, search_range
+from .integrator import simulate
+from .recording import Recording
+from .terms.base import AbstractTerm
+from .terms.effects import CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
+from .terms.paper import ClosureHold, FlowSeparation
+
+#: The candidates tried by default, in this order (those already active in the model are
+#: skipped; FlowSeparation and ClosureHold only when absent or switched off).
+DEFAULT_CANDIDATES = (GlottalGap, CubicStiffness, PressureModulation, MucosalDelay,
+                      FlowSeparation, ClosureHold)  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """A candidate effect: a term at its off-value and how to test it.
+
+    Build one with `Candidate.of(TermClass)`; the settings come from the term class's
+    ``off_values``, ``one_sided``, ``score_grid``, ``score_directions`` and ``score_point``.
+
+    Attributes:
+        name: the effect's name (its class name).
+        term: the term, with the tested parameters at their off-values.
+        tested: names of the parameters tested at their off-values.
+        one_sided: one-sided test (only for a single tested column).
+        grid: settings of other parameters searched by the score test.
+        directions: settings whose columns are tested jointly.
+        point: where the derivatives are taken.
+    """
+
+    name: str
+    term: AbstractTerm
+    tested: tuple[str, ...]
+    one_sided: bool
+    grid: tuple[dict, ...]
+    directions: tuple[dict, ...]
+    point: dict
+
+    @classmethod
+    def of(cls, effect: type | AbstractTerm) -> "Candidate":
+        """The candidate for a term class (built at its off-values) or a term instance (its
+        tested parameters are set to their off-values; its other parameters are kept)."""
+        kind = effect if isinstance(effect, type) else type(effect)
+        if not (isinstance(kind, type) and issubclass(kind, AbstractTerm)):
+            raise TypeError(f"a candidate effect must be a vfjax term, got {effect!r}")
+        if not kind.off_values:
+            raise ValueError(f"{kind.__name__} declares no off_values: the diagnosis needs the "
+                             "parameter values that switch it off")  # fmt: skip
+        term = kind(**kind.off_values) if isinstance(effect, type) else effect
+        for name, value in kind.off_values.items():
+            field = kind.parameters[name][0]
+            term = eqx.tree_at(lambda t, f=field: getattr(t, f), term, jnp.asarray(float(value)))
+        tested = tuple(kind.off_values)
+        directions = tuple(kind.score_directions)
+        return cls(
+            name=kind.__name__,
+            term=term,
+            tested=tested,
+            one_sided=bool(kind.one_sided) and len(tested) * len(directions) == 1,
+            grid=tuple(kind.score_grid),
+            directions=directions,
+            point={n: float(kind.score_point.get(n, kind.off_values[n])) for n in tested},
+        )
+
+    @property
+    def extra(self) -> tuple[str, ...]:
+        """Parameters set by the grid or the directions (fitted in the refit too)."""
+        names = []
+        for d in self.grid + self.directions:
+            names += [n for n in d if n not in self.tested and n not in names]
+        return tuple(names)
+
+    @property
+    def dof(self) -> int:
+        return len(self.tested) * len(self.directions)
+
+
+def default_candidates(model) -> list[Candidate]:
+    """`DEFAULT_CANDIDATES` that are absent from ``model`` (or present at their off-value)."""
+    out = []
+    for kind in DEFAULT_CANDIDATES:
+        term = model.term(kind)
+        if term is None:
+            out.append(Candidate.of(kind))
+        elif _is_off(term):
+            out.append(Candidate.of(term))
+    return out
+
+
+def _is_off(term) -> bool:
+    kind = type(term)
+    return all(float(getattr(term, kind.parameters[n][0])) == v
+               for n, v in kind.off_values.items())  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectScore:
+    """The score test of one candidate effect.
+
+    Attributes:
+        effect: the effect's name.
+        parameters: the tested parameter names.
+        statistic: LM statistic (chi-square scale; for one-sided tests z * |z|).
+        dof: degrees of freedom.
+        p_value: p-value (Bonferroni-corrected over the grid where one is searched).
+        direction: sign of the one-step estimate (single column), else 0.
+        one_sided: whether the test is one-sided.
+        explained: share of the residual sum of squares that the effect's columns explain
+            (after projection), a linearised measure of how much it could help.
+        estimates: one-step (Gauss-Newton) estimates of the effect's parameters from the
+            off-value, at the grid settings with the largest statistics (best first, at most
+            five; one without a grid).
+    """
+
+    effect: str
+    parameters: tuple
+    statistic: float
+    dof: int
+    p_value: float
+    direction: int
+    one_sided: bool
+    explained: float
+    estimates: tuple
+
+    @property
+    def estimate(self) -> dict:
+        """The one-step estimate at the best grid setting."""
+        return self.estimates[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class EffectRefit:
+    """The quick refit with one candidate effect.
+
+    Attributes:
+        effect: the effect's name.
+        result: the refit (`FitResult`; its model holds the effect).
+        nmse: the error it reaches.
+        fall: share of the current squared error it removes, 1 - nmse / nmse_before.
+        values: the effect's fitted parameters.
+        p_value: F test of the error fall against the control refit, on the effective
+            number of independent frames (`effective_frames`).
+    """
+
+    effect: str
+    result: FitResult
+    nmse: float
+    fall: float
+    values: dict
+    p_value: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Diagnosis:
+    """What `diagnose` found.
+
+    Attributes:
+        result: the fit that was diagnosed.
+        recording_name: its recording's name.
+        comparison: the measured-vs-fitted `Comparison`.
+        scores: score tests by effect name.
+        refits: quick refits by effect name (empty without refits).
+        control: the same refit without any effect (None without refits): the error the
+            fitted model itself reaches with the refit's search; falls are measured from the
+            lower of its error and the fit's.
+        ranking: effect names, best first.
+        needed: effects that pass both criteria, best first.
+        alpha: the family-wise significance level; ``level`` = alpha / number of candidates.
+        min_fall: the share of the squared error a needed effect's refit must remove.
+        noise_nmse: the NMSE that measurement noise alone would leave (estimated from the
+            GAW's frame-to-frame differences), a floor no model can beat.
+        verdict: the conclusion in words.
+    """
+
+    result: FitResult
+    recording_name: str
+    comparison: Comparison
+    scores: dict
+    refits: dict
+    control: FitResult | None
+    ranking: list
+    needed: list
+    alpha: float
+    level: float
+    min_fall: float
+    noise_nmse: float
+    verdict: str
+
+    @property
+    def nmse_before(self) -> float:
+        """The error the falls are measured from: the fit's, or the control refit's if lower."""
+        return min(self.result.nmse, self.control.nmse) if self.control else self.result.nmse
+
+    @property
+    def best(self) -> str | None:
+        """The effect to add (the top needed one), or None."""
+        return self.needed[0] if self.needed else None
+
+    @property
+    def best_fit(self) -> FitResult | None:
+        """The refit with the best needed effect, or None."""
+        return self.refits.get(self.best).result if self.best in self.refits else None
+
+    def table(self) -> list[dict]:
+        """One row per candidate, in ranking order."""
+        rows = []
+        for rank, name in enumerate(self.ranking, 1):
+            s = self.scores[name]
+            f = self.refits.get(name)
+            rows.append({
+                "rank": rank, "effect": name, "statistic": s.statistic, "dof": s.dof,
+                "p_value": s.p_value, "one_sided": s.one_sided,
+                "nmse_after": f.nmse if f else None, "fall": f.fall if f else None,
+                "refit_p_value": f.p_value if f else None,
+                "evidence": _evidence(s, f), "significant": _evidence(s, f) < self.level,
+                "values": f.values if f else {}, "needed": name in self.needed,
+            })  # fmt: skip
+        return rows
+
+
+# ----------------------------------------------------------------------------- sensitivities
+class _Sampler(eqx.Module):
+    """Simulates the fitted GAW (clipped at 0) on the recording's frames."""
+
+    fps: float = eqx.field(static=True)
+    n_frames: int = eqx.field(static=True)
+    substeps: int = eqx.field(static=True)
+    warmup: float = eqx.field(static=True)
+    max_time_shift: float = eqx.field(static=True)
+
+    def gaw(self, model, shift):
+        sim = simulate(model, self.fps, self.n_frames, substeps=self.substeps,
+                       t_start=self.warmup, time_shift=shift,
+                       max_time_shift=self.max_time_shift)  # fmt: skip
+        return jnp.maximum(sim.area, 0.0)
+
+
+def _sampler(result: FitResult, recording: Recording) -> _Sampler:
+    s = result.settings
+    return _Sampler(recording.fps, recording.n_frames, s["substeps"], s["warmup"],
+                    s["max_time_shift"])  # fmt: skip
+
+
+@eqx.filter_jit
+def _fitted_columns(sampler, model, names, shift):
+    """The GAW and its derivatives: d/dlog(p) (d/dp where p = 0) and d/d(shift)."""
+    values = jnp.stack([model.params()[n] for n in names])
+    scale = jnp.where(values != 0.0, values, 1.0)
+
+    def g(p, t):
+        return sampler.gaw(model.set(**{n: p[i] for i, n in enumerate(names)}), t)
+
+    jp, jt = jax.jacfwd(g, argnums=(0, 1))(values, shift)
+    return g(values, shift), jnp.concatenate([jp * scale, jt[:, None]], axis=1)
+
+
+@eqx.filter_jit
+def _effect_columns(sampler, models, names, point, shift):
+    """d GAW / d(tested parameters) at ``point`` for a batch of models (one per variant)."""
+
+    def one(model):
+        def g(p):
+            return sampler.gaw(model.set(**{n: p[i] for i, n in enumerate(names)}), shift)
+
+        return jax.jacfwd(g)(point)
+
+    return jax.vmap(one)(models)
+
+
+def _stack(models):
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *models)
+
+
+# ------------------------------------------------------------------------------- statistics
+def _hac(h: np.ndarray, bandwidth: int) -> np.ndarray:
+    """Newey-West long-run covariance of the rows of h (n, k), Bartlett weights."""
+    v = h.T @ h
+    for lag in range(1, min(bandwidth, h.shape[0] - 1) + 1):
+        g = h[lag:].T @ h[:-lag]
+        v += (1.0 - lag / (bandwidth + 1.0)) * (g + g.T)
+    return v
+
+
+def _score(r, q, je, n_fitted, variance, bandwidth):
+    """(u, V, LM, explained, one-step estimate) for the columns je against residual r."""
+    me = je - q @ (q.T @ je)
+    u = me.T @ r
+    if variance == "hac":
+        v = _hac(me * r[:, None], bandwidth)
+    else:
+        v = float(r @ r) / max(r.size - n_fitted, 1) * (me.T @ me)
+    lm = float(u @ np.linalg.pinv(v) @ u)
+    gram = me.T @ me
+    step = np.linalg.lstsq(gram, u, rcond=None)[0]
+    rr = float(r @ r)
+    explained = float(u @ step) / rr if rr > 0 else 0.0
+    return u, v, lm, explained, step
+
+
+def score_tests(
+    result: FitResult,
+    recording: Recording,
+    candidates: Sequence | None = None,
+    *,
+    variance: str = "hac",
+) -> list[EffectScore]:
+    """Score tests of the ``candidates`` (default: `default_candidates`) at ``result``.
+
+    Arguments:
+        result: a fit (`vfjax.fit`) of ``recording``.
+        recording: the measured GAW.
+        candidates: term classes, term instances or `Candidate` objects.
+        variance: ``"hac"`` (autocorrelation-robust, default) or ``"iid"``.
+    Returns the scores in the order of the candidates.
+    """
+    if variance not in ("hac", "iid"):
+        raise ValueError(f"variance must be 'hac' or 'iid', got {variance!r}")
+    cands = _as_candidates(result.model, candidates)
+    sampler = _sampler(result, recording)
+    names = tuple(result.params)
+    g0, jf = (np.asarray(a) for a in _fitted_columns(sampler, result.model, names,
+                                                     jnp.asarray(result.time_shift)))  # fmt: skip
+    r = np.asarray(recording.area, dtype=float) - g0
+    q, _ = np.linalg.qr(jf)
+    bandwidth = max(1, round(recording.fps / _f0(result, recording)))
+    return [_candidate_score(c, result, sampler, r, q, jf.shape[1], variance, bandwidth)
+            for c in cands]  # fmt: skip
+
+
+def _f0(result, recording):
+    from .descriptors import fundamental_frequency
+
+    f0 = fundamental_frequency(recording.area, recording.fps)
+    return f0 if np.isfinite(f0) else recording.fps / 10.0
+
+
+def _candidate_score(cand, result, sampler, r, q, n_fitted, variance, bandwidth):
+    base = result.model.with_term(cand.term)
+    variants = [base.set(**g, **d) for g in cand.grid for d in cand.directions]
+    point = jnp.asarray([cand.point[n] for n in cand.tested])
+    cols = np.asarray(_effect_columns(sampler, _stack(variants), cand.tested, point,
+                                      jnp.asarray(result.time_shift)))  # fmt: skip
+    n_dir = len(cand.directions)
+    # (grid, directions, frames, tested) -> per grid point: (frames, directions * tested)
+    cols = cols.reshape(len(cand.grid), n_dir, r.size, len(cand.tested))
+    found = []
+    for gi, setting in enumerate(cand.grid):
+        je = np.concatenate([cols[gi, di] for di in range(n_dir)], axis=1)
+        found.append((*_score(r, q, je, n_fitted, variance, bandwidth), setting))
+    found.sort(key=lambda f: -f[2])
+    u, v, lm, explained, step, setting = found[0]
+    estimates = tuple(_estimate(cand, f[4], f[5]) for f in found[:5])
+    if cand.one_sided:
+        z = float(u[0] / math.sqrt(v[0, 0])) if v[0, 0] > 0 else 0.0
+        statistic, p = z * abs(z), float(stats.norm.sf(z))
+    else:
+        statistic, p = lm, float(stats.chi2.sf(lm, cand.dof))
+    p = min(1.0, p * len(cand.grid))
+    direction = int(np.sign(step[0])) if step.size == 1 else 0
+    return EffectScore(cand.name, cand.tested, statistic, cand.dof, p, direction,
+                       cand.one_sided, explained, estimates)  # fmt: skip
+
+
+def _estimate(cand, step, setting):
+    """The one-step estimate as parameter values (a sine/cosine pair -> amplitude, phase)."""
+    est = dict(setting)
+    if len(cand.directions) == 2 and len(cand.tested) == 1:
+        d0, d1 = cand.directions
+        (phase_name,) = [n for n in d0 if n in d1] or [None]
+        if phase_name is not None:
+            # c0 sin(w t + p0) + c1 sin(w t + p1) with p1 = p0 + pi/2 is A sin(w t + p0 + psi)
+            c0, c1 = float(step[0]), float(step[1])
+            est[cand.tested[0]] = cand.point[cand.tested[0]] + math.hypot(c0, c1)
+            est[phase_name] = _wrap(d0[phase_name] + math.atan2(c1, c0))
+            return est
+    for i, n in enumerate(cand.tested):
+        est[n] = cand.point[n] + float(step[i * len(cand.directions)])
+    for d in cand.directions[:1]:
+        est.update({k: v for k, v in d.items() if k not in est})
+    return est
+
+
+def _wrap(angle):
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _as_candidates(model, candidates):
+    if candidates is None:
+        return default_candidates(model)
+    out = [c if isinstance(c, Candidate) else Candidate.of(c) for c in candidates]
+    present = [c.name for c in out
+               if model.has(type(c.term)) and not _is_off(model.term(type(c.term)))]  # fmt: skip
+    if present:
+        raise ValueError(f"{present} already active in the fitted model: nothing to test")
+    return out
+
+
+# ----------------------------------------------------------------------------------- refits
+def _starts(cand: Candidate, model, score: EffectScore, n: int) -> list[dict]:
+    """Starting values of the effect's parameters for the refit: just off the off-value (the
+    current fit), then the one-step estimates (at the next-best grid settings, or scaled),
+    clipped into the parameters' ranges."""
+
+    def near_off(est):
+        return {**est, **{t: cand.point[t] + 0.03 * _range(t)[2] for t in cand.tested}}
+
+    def _range(name):
+        return search_range(model, name) or (-np.inf, np.inf, 0.1)
+
+    ests = list(score.estimates)
+    proposals = [near_off(ests[0]), ests[0]]
+    proposals += (
+        ests[1:]
+        if len(ests) > 1
+        else [
+            {
+                **ests[0],
+                **{t: cand.point[t] + f * (ests[0][t] - cand.point[t]) for t in cand.tested},
+            }
+            for f in (2.0, 0.5)
+        ]
+    )
+    starts = []
+    for s in proposals[:n]:
+        s = dict(s)
+        for name in cand.tested + cand.extra:
+            low, high, scale = _range(name)
+            value = s[name]
+            if cand.one_sided and name in cand.tested:
+                value = max(value, cand.point[name] + 1e-2 * scale)
+            s[name] = float(np.clip(value, low, high))
+        starts.append(s)
+    return starts
+
+
+def refit_with(
+    result: FitResult,
+    recording: Recording,
+    candidate=None,
+    starts: Sequence[dict] = ({},),
+    *,
+    iterations: int = 30,
+    swarm_size: int = 24,
+    lm_steps: int = 30,
+    box: float = 1.6,
+) -> FitResult:
+    """Refit ``result``'s parameters plus the candidate's, from each of ``starts`` (values of
+    the candidate's parameters), as one batch (`vfjax.fit_many`); returns the best refit.
+    Without a candidate: the same refit of the fitted model alone (the control).
+
+    Each start is particle 0 of a small swarm (``swarm_size`` particles, ``iterations``
+    iterations) that searches the effect's parameters over their range (`search_range`)
+    and the fitted ones within a factor ``box`` of their current values; then LM.
+    """
+    names = tuple(result.params)
+    base = result.model
+    if candidate is not None:
+        cand = candidate if isinstance(candidate, Candidate) else Candidate.of(candidate)
+        names += cand.tested + cand.extra
+        base = base.with_term(cand.term)
+    models = [base.set(**{k: v for k, v in s.items() if k in names}) for s in starts]
+    bounds = {n: (v / box, v * box) for n, v in result.params.items()
+              if v > 0 and search_range(base, n) is None}  # fmt: skip
+    s = result.settings
+    fits = fit_many(models, [recording] * len(models), params=names, iterations=iterations,
+                    swarm_size=swarm_size, lm_steps=lm_steps, warmup=s["warmup"],
+                    substeps=s["substeps"], bounds=bounds)  # fmt: skip
+    return min(fits, key=lambda f: f.nmse if np.isfinite(f.nmse) else np.inf)
+
+
+def effective_frames(residual: np.ndarray, bandwidth: int) -> float:
+    """Frames' worth of independent information in a correlated residual: n over the
+    long-run variance ratio 1 + 2 sum_l w_l rho_l (Bartlett weights, lags up to
+    ``bandwidth``), kept within [n / (bandwidth + 1), n]."""
+    r = np.asarray(residual, dtype=float) - np.mean(residual)
+    n, c0 = r.size, float(r @ r)
+    if c0 == 0:
+        return float(n)
+    ratio = 1.0 + 2.0 * sum((1.0 - lag / (bandwidth + 1.0)) * float(r[lag:] @ r[:-lag]) / c0
+                            for lag in range(1, min(bandwidth, n - 1) + 1))  # fmt: skip
+    return float(np.clip(n / max(ratio, 1e-12), n / (bandwidth + 1.0), n))
+
+
+def _refit_p_value(sse0, sse1, n_eff, n_fitted, n_added):
+    """F test of the refit's error fall, on ``n_eff`` effective frames."""
+    dof = n_eff - n_fitted - n_added
+    if sse1 <= 0 or dof <= 0:
+        return 0.0 if sse1 < sse0 else 1.0
+    f = max(sse0 - sse1, 0.0) / n_added / (sse1 / dof)
+    return float(stats.f.sf(f, n_added, dof))
+
+
+# -------------------------------------------------------------------------------- diagnosis
+def diagnose(
+    result: FitResult,
+    recording: Recording,
+    candidates: Sequence | None = None,
+    *,
+    alpha: float = 0.01,
+    min_fall: float = 0.2,
+    refit: bool = True,
+    starts: int = 3,
+    iterations: int = 30,
+    variance: str = "hac",
+    progress: bool = False,
+) -> Diagnosis:
+    """Find the effect the fitted model misses (see the module's docstring).
+
+    Arguments:
+        result: a fit (`vfjax.fit`) of ``recording``.
+        recording: the measured GAW.
+        candidates: term classes, term instances or `Candidate` objects (default: the
+            catalogue, `default_candidates`).
+        alpha: family-wise significance level (Bonferroni over the candidates and over the
+            two tests, score and refit).
+        min_fall: share of the squared error a needed effect's refit must remove.
+        refit: run the quick refits (and the control refit without any effect).
+        starts: starting points per refit (batched).
+        iterations: PSO iterations of each refit's small swarms.
+        variance: ``"hac"`` (default) or ``"iid"``, see `score_tests`.
+        progress: print one line per refit.
+    """
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha must lie in (0, 1), got {alpha}")
+    if not 0 <= min_fall < 1:
+        raise ValueError(f"min_fall must lie in [0, 1), got {min_fall}")
+    cands = _as_candidates(result.model, candidates)
+    if not cands:
+        raise ValueError("no candidate effect to test: every one is already in the model")
+    comparison = compare(result, recording)
+    scores = score_tests(result, recording, cands, variance=variance)
+    by_name = {s.effect: s for s in scores}
+    level = alpha / len(cands)
+    refits, control, reference = {}, None, result.nmse
+    bandwidth = max(1, round(recording.fps / _f0(result, recording)))
+    sse_scale = float(np.sum(np.square(recording.area)))
+    if refit:
+        control = refit_with(result, recording, iterations=iterations)
+        reference = min(result.nmse, control.nmse)
+        if progress:
+            print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
+        before = result if result.nmse <= control.nmse else control
+        n_eff = effective_frames(recording.area - before.fitted_gaw(recording), bandwidth)
+        for cand, score in zip(cands, scores):
+            fitted = refit_with(result, recording, cand,
+                                _starts(cand, result.model.with_term(cand.term), score, starts),
+                                iterations=iterations)  # fmt: skip
+            values = {n: fitted.params[n] for n in cand.tested + cand.extra}
+            fall = 1.0 - fitted.nmse / reference if reference > 0 else 0.0
+            p = _refit_p_value(reference * sse_scale, fitted.nmse * sse_scale, n_eff,
+                               len(result.params) + 1, len(values))  # fmt: skip
+            refits[cand.name] = EffectRefit(cand.name, fitted, fitted.nmse, fall, values, p)
+            if progress:
+                print(f"{cand.name}: score p = {score.p_value:.2g}, NMSE {reference:.4g} -> "
+                      f"{fitted.nmse:.4g} (refit p = {p:.2g})")  # fmt: skip
+        ranking = sorted(by_name, key=lambda n: (refits[n].nmse, by_name[n].p_value))
+    else:
+        ranking = sorted(by_name, key=lambda n: (by_name[n].p_value, -by_name[n].statistic))
+    noise = noise_level(comparison.measured, comparison.simulated)
+    noise_nmse = recording.n_frames * noise**2 / sse_scale
+
+    def is_needed(n):
+        if _evidence(by_name[n], refits.get(n)) >= level:
+            return False
+        if not refits:
+            return True
+        f = refits[n]
+        # it must remove a share of the error, and more than half the noise's own worth
+        # (fitting noise and cycle-to-cycle jitter with a few extra parameters removes less)
+        return f.fall >= min_fall and reference - f.nmse >= 0.5 * noise_nmse
+
+    needed = [n for n in ranking if is_needed(n)]
+    diag = Diagnosis(result, recording.name, comparison, by_name, refits, control, ranking,
+                     needed, alpha, level, min_fall, noise_nmse, "")  # fmt: skip
+    return dataclasses.replace(diag, verdict=_verdict(diag))
+
+
+def _evidence(score: EffectScore, refit: "EffectRefit | None") -> float:
+    """Combined p-value: the smaller of the score test's and the refit's, doubled."""
+    if refit is None:
+        return score.p_value
+    return min(1.0, 2.0 * min(score.p_value, refit.p_value))
+
+
+def _verdict(d: Diagnosis) -> str:
+    before = d.nmse_before
+    floor = f"noise floor about {d.noise_nmse:.2%}"
+    lines = []
+    if d.control is not None and d.control.nmse < 0.8 * d.result.nmse:
+        lines.append(f"The fit was not the best the model can do: a refit without any effect "
+                     f"reaches NMSE {d.control.nmse:.3%} (was {d.result.nmse:.3%})")  # fmt: skip
+    if d.best is not None:
+        f = d.refits.get(d.best)
+        text = f"{d.best} is missing (evidence p = {_evidence(d.scores[d.best], f):.2g})"
+        if f is not None:
+            values = ", ".join(f"{k} = {v:.4g}" for k, v in f.values.items())
+            text += (f": adding it lowers the NMSE from {before:.3%} to {f.nmse:.3%} "
+                     f"({f.fall:.0%} of the squared error; {values})")  # fmt: skip
+            if f.nmse > 2.0 * d.noise_nmse and f.nmse > 0.002:
+                text += (f". The error left is above the noise ({floor}): something else is "
+                         "still missing; diagnose the extended fit for a second round")  # fmt: skip
+        lines.append(text)
+        return ". ".join(lines) + "."
+    significant = [n for n in d.ranking if _evidence(d.scores[n], d.refits.get(n)) < d.level]
+    if before <= 2.0 * d.noise_nmse:
+        lines.append(f"No effect is needed: the NMSE {before:.3%} is at the noise level "
+                     f"({floor}) and no candidate removes {d.min_fall:.0%} of it")  # fmt: skip
+    elif significant:
+        n = significant[0]
+        fall = d.refits[n].fall if n in d.refits else float("nan")
+        lines.append(f"No catalogue effect explains the misfit: {n} is detectable (p = "
+                     f"{_evidence(d.scores[n], d.refits.get(n)):.2g}) but removes only "
+                     f"{fall:.0%} of the squared error (NMSE {before:.3%}, {floor})")  # fmt: skip
+    else:
+        lines.append(f"No candidate effect is significant (NMSE {before:.3%}, {floor}): the "
+                     "misfit left is not one the catalogue describes")  # fmt: skip
+    failures = d.comparison.failures()
+    if failures and before > 2.0 * d.noise_nmse:
+        lines.append("Where the model fails: " + "; ".join(failures[:3]))
+    return ". ".join(lines) + "."
+
+
+def extend(result: FitResult, recording: Recording, effect, params=None, **fit_kwargs):
+    """Add ``effect`` to the fitted model and refit, warm-started from the current fit.
+
+    Arguments:
+        result: the current fit.
+        recording: its recording.
+        effect: the term to add, with its starting values (e.g. ``GlottalGap()``, or a
+            diagnosis's ``refits[name].result.model.term(GlottalGap)``).
+        params: the effect's parameters to fit (default: all of them).
+        fit_kwargs: passed to `vfjax.fit` (default: 40 PSO iterations, no progress bar).
+    Returns the new `FitResult`; its model holds the effect.
+    """
+    from .fit import fit
+
+    model = result.model.with_effect(effect)
+    names = tuple(result.params) + tuple(params or type(effect).parameters)
+    kwargs = {"iterations": 40, "progress": False, **fit_kwargs}
+    return fit(model, recording, params=names, **kwargs)

@@ -1,0 +1,230 @@
+"""The diagnosis report: Markdown with PNG figures, from an `Investigation` (or one
+`Diagnosis`).
+
+    study = vfjax.investigate(recording)
+    vfjax.report.write_report(study, recording, "out/")      # out/report.md + figures
+"""
+
+import pathlib
+
+import numpy as np
+
+from .compare import plot_comparison
+from .diagnosis import Diagnosis
+from .recording import Recording
+from .workflow import Investigation, Round
+
+
+def _fmt(v, digits=4):
+    if v is None:
+        return "-"
+    if isinstance(v, float) and (abs(v) >= 1e4 or (0 < abs(v) < 1e-3)):
+        return f"{v:.{digits - 1}e}"
+    return f"{v:.{digits}g}"
+
+
+def _p(v):
+    return "-" if v is None else ("< 1e-16" if v < 1e-16 else f"{v:.2g}")
+
+
+def plot_candidates(d: Diagnosis, ax=None):
+    """NMSE each candidate's refit reaches, against the error before and the noise floor."""
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6, 3))
+    rows = [r for r in d.table() if r["nmse_after"] is not None]
+    names = [r["effect"] for r in rows]
+    values = [max(r["nmse_after"], 1e-12) for r in rows]
+    colours = ["#2a9d8f" if r["needed"] else ("#e9c46a" if r["significant"] else "#adb5bd")
+               for r in rows]  # fmt: skip
+    ax.barh(names[::-1], values[::-1], color=colours[::-1])
+    ax.axvline(d.nmse_before, color="#c1121f", lw=1.2, label="before")
+    if d.noise_nmse > 0:
+        ax.axvline(d.noise_nmse, color="#1d3557", ls="--", lw=1.0, label="noise floor")
+    ax.set_xscale("log")
+    ax.set_xlabel("NMSE after a quick refit with the effect")
+    ax.legend(frameon=False, fontsize=7)
+    ax.set_title("green: needed, yellow: significant only", fontsize=8)
+    return ax
+
+
+def plot_rounds(study: Investigation, recording: Recording):
+    """Measured vs the first and the final fit, the error per round, and the convergence of
+    the last extension."""
+    import matplotlib.pyplot as plt
+
+    from .plotting import plot_convergence
+
+    fig = plt.figure(figsize=(12, 6))
+    grid = fig.add_gridspec(2, 3)
+    ax = fig.add_subplot(grid[0, :])
+    t = recording.time * 1e3
+    ax.plot(t, recording.area, color="#2a9d8f", lw=1.4, label="measured")
+    ax.plot(t, study.first.fitted_gaw(recording), color="#adb5bd", lw=1.1,
+            label=f"paper model (NMSE {study.first.nmse:.2%})")  # fmt: skip
+    if study.added:
+        ax.plot(t, study.final.fitted_gaw(recording), color="#c1121f", lw=1.1,
+                label=f"+ {' + '.join(study.added)} (NMSE {study.final.nmse:.2%})")  # fmt: skip
+    ax.set_xlabel("time (ms)")
+    ax.set_ylabel(f"area ({recording.unit})")
+    ax.legend(frameon=False, fontsize=7, ncol=3, loc="upper right")
+    ax.margins(x=0)
+    ax = fig.add_subplot(grid[1, 0])
+    labels = ["paper"] + [f"+ {n}" for n in study.added]
+    errors = [study.first.nmse] + [r.extended.nmse for r in study.rounds if r.extended]
+    ax.bar(range(len(errors)), errors, color=["#adb5bd"] + ["#2a9d8f"] * (len(errors) - 1))
+    ax.set_xticks(range(len(errors)), labels, fontsize=7, rotation=15)
+    ax.set_yscale("log")
+    ax.set_ylabel("NMSE")
+    floor = study.rounds[-1].diagnosis.noise_nmse
+    if floor > 0:
+        ax.axhline(floor, color="#1d3557", ls="--", lw=1.0, label="noise floor")
+        ax.legend(frameon=False, fontsize=7)
+    ax = fig.add_subplot(grid[1, 1:])
+    last = [r.extended for r in study.rounds if r.extended]
+    plot_convergence(last[-1] if last else study.first, ax=ax)
+    ax.set_title("convergence of the " + ("last extension" if last else "fit"), fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def _round_lines(i: int, r: Round, recording: Recording, folder: pathlib.Path, dpi: int):
+    import matplotlib.pyplot as plt
+
+    d = r.diagnosis
+    c = d.comparison
+    stem = f"{recording.name}_round{i}"
+    fig = plot_comparison(c, f"round {i}: {' + '.join(_terms(r.fit)) or 'model'}")
+    fig.savefig(folder / f"{stem}_compare.png", dpi=dpi)
+    plt.close(fig)
+    lines = [
+        f"## Round {i}: {_model_words(r.fit)}",
+        "",
+        "Fitted: "
+        + ", ".join(f"{n} = {_fmt(v)} {r.fit.units[n]}" for n, v in r.fit.params.items())
+        + f"; NMSE {r.fit.nmse:.3%} (noise floor about {d.noise_nmse:.3%}).",
+        "",
+        "### Where the model fails",
+        "",
+        *[f"- {w}" for w in c.failures()],
+        "",
+        "| phase | share of squared error | share of frames |",
+        "|---|---|---|",
+        *[f"| {n} | {c.error_share[n]:.0%} | {c.time_share[n]:.0%} |" for n in c.error_share],
+        "",
+        "| descriptor | measured | model |",
+        "|---|---|---|",
+        *[f"| {lab} | {_fmt(a)} {u} | {_fmt(b)} {u} |" for lab, a, b, u in c.table()],
+        "",
+        f"![measured vs model, residual with the model's phases]({stem}_compare.png)",
+        "",
+        "### Which effect is missing",
+        "",
+        f"Score test at the off-value (autocorrelation-robust) and a quick refit with each "
+        f"candidate. An effect is *needed* when the evidence (twice the smaller of the two "
+        f"p-values) is below {d.level:.1e} ({d.alpha:g} over {len(d.scores)} candidates) and "
+        f"its refit removes at least {d.min_fall:.0%} of the squared error "
+        f"(from NMSE {d.nmse_before:.3%}"
+        + (
+            ", the control refit without any effect"
+            if d.control is not None and d.control.nmse < r.fit.nmse
+            else ""
+        )
+        + ").",  # fmt: skip
+        "",
+        "| rank | effect | score statistic | score p | NMSE after refit | error fall | "
+        "refit p | needed | fitted values |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in d.table():
+        values = ", ".join(f"{k} = {_fmt(v)}" for k, v in row["values"].items())
+        nmse = "-" if row["nmse_after"] is None else f"{row['nmse_after']:.3%}"
+        fall = "-" if row["fall"] is None else f"{row['fall']:.0%}"
+        lines.append(f"| {row['rank']} | {row['effect']} | {row['statistic']:.3g} | "
+                     f"{_p(row['p_value'])} | {nmse} | {fall} | {_p(row['refit_p_value'])} | "
+                     f"{'**yes**' if row['needed'] else 'no'} | {values} |")  # fmt: skip
+    if d.refits:
+        fig, ax = plt.subplots(figsize=(7, 0.5 + 0.45 * len(d.refits)))
+        plot_candidates(d, ax=ax)
+        fig.tight_layout()
+        fig.savefig(folder / f"{stem}_candidates.png", dpi=dpi)
+        plt.close(fig)
+        lines += ["", f"![error each candidate reaches]({stem}_candidates.png)"]
+    lines += ["", f"**Verdict.** {d.verdict}", ""]
+    if r.extended is not None:
+        added = {n: v for n, v in r.extended.params.items() if n not in r.fit.params}
+        lines += [
+            f"### Adding {r.added}",
+            "",
+            "| model | NMSE | " + " | ".join(added) + " |",
+            "|---|---|" + "---|" * len(added),
+            f"| before | {r.fit.nmse:.3%} | " + " | ".join("off" for _ in added) + " |",
+            f"| + {r.added} | {r.extended.nmse:.3%} | "
+            + " | ".join(f"{_fmt(v)} {r.extended.units[n]}" for n, v in added.items())
+            + " |",
+            "",
+        ]
+    return lines
+
+
+def _terms(result):
+    from .terms.paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
+
+    paper = (Elastic, TanhDamping, BernoulliForce, FlowSeparation, ClosureHold)
+    return [type(t).__name__ for t in result.model.terms if not isinstance(t, paper)]
+
+
+def _model_words(result):
+    extra = _terms(result)
+    return "the paper's model" + (" + " + " + ".join(extra) if extra else "")
+
+
+def write_report(
+    study: Investigation | Diagnosis,
+    recording: Recording,
+    folder,
+    title: str | None = None,
+    dpi: int = 110,
+) -> pathlib.Path:
+    """Write ``folder/report.md`` and its PNG figures; returns the report's path.
+
+    Arguments:
+        study: an `Investigation` (`vfjax.investigate`) or a single `Diagnosis`.
+        recording: the recording it was made on.
+        folder: output folder (created).
+        title: the report's title.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    if isinstance(study, Diagnosis):
+        study = Investigation(recording.name, [Round(study.result, study, None, None)])
+    lines = [f"# {title or 'vfjax diagnosis: ' + recording.name}", ""]
+    n_peak = float(np.max(recording.area))
+    lines += [
+        f"Recording `{recording.name}`: {recording.n_frames} frames at {recording.fps:g} fps "
+        f"({recording.n_frames / recording.fps * 1e3:.1f} ms), peak area {_fmt(n_peak)} "
+        f"{recording.unit}.",
+        "",
+        "| round | model | NMSE | added next |",
+        "|---|---|---|---|",
+    ]
+    for i, r in enumerate(study.rounds, 1):
+        lines.append(f"| {i} | {_model_words(r.fit)} | {r.fit.nmse:.3%} | {r.added or '-'} |")
+    if study.added:
+        lines.append(f"| final | {_model_words(study.final)} | {study.final.nmse:.3%} | |")
+    lines += ["", f"**Conclusion.** {study.rounds[-1].diagnosis.verdict}", ""]
+    fig = plot_rounds(study, recording)
+    fig.savefig(folder / f"{recording.name}_rounds.png", dpi=dpi)
+    plt.close(fig)
+    lines += [f"![fits, error per round, convergence]({recording.name}_rounds.png)", ""]
+    for i, r in enumerate(study.rounds, 1):
+        lines += _round_lines(i, r, recording, folder, dpi)
+    path = folder / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
