@@ -9,7 +9,18 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from . import compare, descriptors, diagnosis, phases, report, segmentation, units, video  # noqa: E402
+from . import (  # noqa: E402
+    compare,
+    datasets,
+    descriptors,
+    diagnosis,
+    phases,
+    report,
+    segmentation,
+    units,
+    video,
+    workflow,
+)
 from .cost import nmse  # noqa: E402
 from .diagnosis import Candidate, Diagnosis, diagnose, score_tests  # noqa: E402
 from .fit import FitResult, fit, fit_many, initial_model  # noqa: E402
@@ -18,7 +29,6 @@ from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, paper_model, preset  # noqa: E402
 from .recording import Recording, load_recording  # noqa: E402
 from .subject import Subject  # noqa: E402
-from .workflow import Investigation, investigate  # noqa: E402
 from .terms import (  # noqa: E402
     AbstractForce,
     AbstractHoldVariability,
@@ -37,14 +47,17 @@ from .terms import (  # noqa: E402
     PressureModulation,
     TanhDamping,
 )
+from .workflow import Investigation, investigate  # noqa: E402
 
 __version__ = "0.1.0"
 
 __all__ = [
     "compare",
     "descriptors",
+    "datasets",
     "diagnosis",
     "report",
+    "workflow",
     "segmentation",
     "video",
     "initial_model",

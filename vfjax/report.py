@@ -124,7 +124,8 @@ def _round_lines(i: int, r: Round, recording: Recording, folder: pathlib.Path, d
         f"Score test at the off-value (autocorrelation-robust) and a quick refit with each "
         f"candidate. An effect is *needed* when the evidence (twice the smaller of the two "
         f"p-values) is below {d.level:.1e} ({d.alpha:g} over {len(d.scores)} candidates) and "
-        f"its refit removes at least {d.min_fall:.0%} of the squared error "
+        f"its refit removes at least {d.min_fall:.0%} of the squared error and "
+        f"{d.noise_multiple:g} noise floors' worth of it "
         f"(from NMSE {d.nmse_before:.3%}"
         + (
             ", the control refit without any effect"
