@@ -174,9 +174,9 @@ CASES = {
     "CubicStiffness": ("N1", CubicStiffness(eta=3000.0), None, ("eta", 3000.0)),
     "PressureModulation": (
         "N3",
-        PressureModulation(a_pm=0.03, f_m=10.0, phi=1.0),
+        PressureModulation(a_pm=0.08, f_m=10.0, phi=1.0),
         None,
-        ("a_pm", 0.03),
+        ("a_pm", 0.08),
     ),  # fmt: skip
     "MucosalDelay": ("N3", MucosalDelay(tau=4e-4), None, ("tau", 4e-4)),
     "FlowSeparation": ("N3", None, FlowSeparation, None),

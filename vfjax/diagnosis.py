@@ -453,7 +453,7 @@ def _as_candidates(model, candidates):
 
 
 # ----------------------------------------------------------------------------------- refits
-def _starts(cand: Candidate, model, score: EffectScore, n: int) -> list[dict]:
+def _starts(cand: Candidate, model, recording, score: EffectScore, n: int) -> list[dict]:
     """Starting values of the effect's parameters for the refit: just off the off-value (the
     current fit), then the one-step estimates (at the next-best grid settings, or scaled),
     clipped into the parameters' ranges."""
@@ -466,6 +466,9 @@ def _starts(cand: Candidate, model, score: EffectScore, n: int) -> list[dict]:
 
     ests = list(score.estimates)
     proposals = [near_off(ests[0]), ests[0]]
+    guess = type(cand.term).guess(recording)
+    if guess:  # values the data show directly (a closure duration) come second
+        proposals.insert(1, {**ests[0], **guess})
     proposals += (
         ests[1:]
         if len(ests) > 1
@@ -602,9 +605,9 @@ def diagnose(
         before = result if result.nmse <= control.nmse else control
         n_eff = effective_frames(recording.area - before.fitted_gaw(recording), bandwidth)
         for cand, score in zip(cands, scores):
-            fitted = refit_with(result, recording, cand,
-                                _starts(cand, result.model.with_term(cand.term), score, starts),
-                                iterations=iterations)  # fmt: skip
+            model = result.model.with_term(cand.term)
+            begin = _starts(cand, model, recording, score, starts)
+            fitted = refit_with(result, recording, cand, begin, iterations=iterations)
             values = {n: fitted.params[n] for n in cand.tested + cand.extra}
             fall = 1.0 - fitted.nmse / reference if reference > 0 else 0.0
             p = _refit_p_value(reference * sse_scale, fitted.nmse * sse_scale, n_eff,

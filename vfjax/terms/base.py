@@ -43,6 +43,12 @@ class AbstractTerm(eqx.Module):
     #: starting at an off-value of 0), in the parameter's unit; see `vfjax.fit.search_range`.
     ranges: ClassVar[dict[str, tuple[float, float, float]]] = {}
 
+    @classmethod
+    def guess(cls, recording) -> dict[str, float]:
+        """Starting values of the term's parameters read off a recording (for the
+        diagnosis's refit), where the data show them directly; empty by default."""
+        return {}
+
 
 class Context(eqx.Module):
     """Everything a force term may read at one instant (CGS units).

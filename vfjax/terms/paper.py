@@ -164,5 +164,13 @@ class ClosureHold(AbstractTerm):
     off_values: ClassVar = {"t_c": 0.0}
     one_sided: ClassVar = True
 
+    @classmethod
+    def guess(cls, recording) -> dict[str, float]:
+        """t_c: the closed-phase duration measured on the GAW."""
+        from ..fit import estimate_closure_duration
+
+        t_c = estimate_closure_duration(recording)
+        return {} if t_c is None else {"t_c": t_c}
+
     def __check_init__(self):
         check_nonnegative("t_c (closure duration)", self.t_c, "s")
