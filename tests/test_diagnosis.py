@@ -226,7 +226,7 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
                        progress=False)  # fmt: skip
     d = vfjax.diagnose(result, rec, refit=False)
     assert d.refits == {} and d.control is None
-    assert d.ranking[0] == "GlottalGap" and d.best == "GlottalGap"
+    assert d.ranking[0] == "GlottalGap" and d.scores["GlottalGap"].direction == +1
     path = vfjax.report.write_report(d, rec, tmp_path)
     text = path.read_text()
     for name in d.ranking:
