@@ -379,16 +379,18 @@ def score_tests(
                                                      jnp.asarray(result.time_shift)))  # fmt: skip
     r = np.asarray(recording.area, dtype=float) - g0
     q, _ = np.linalg.qr(jf)
-    bandwidth = max(1, round(recording.fps / _f0(result, recording)))
+    bandwidth = _bandwidth(recording)
     return [_candidate_score(c, result, sampler, r, q, jf.shape[1], variance, bandwidth)
             for c in cands]  # fmt: skip
 
 
-def _f0(result, recording):
+def _bandwidth(recording) -> int:
+    """One glottal period in frames: the lag window of the robust variance and of
+    `effective_frames` (a tenth of the frame rate if no f0 is found)."""
     from .descriptors import fundamental_frequency
 
     f0 = fundamental_frequency(recording.area, recording.fps)
-    return f0 if np.isfinite(f0) else recording.fps / 10.0
+    return max(1, round(recording.fps / f0)) if np.isfinite(f0) else 10
 
 
 def _candidate_score(cand, result, sampler, r, q, n_fitted, variance, bandwidth):
@@ -458,11 +460,11 @@ def _starts(cand: Candidate, model, recording, score: EffectScore, n: int) -> li
     current fit), then the one-step estimates (at the next-best grid settings, or scaled),
     clipped into the parameters' ranges."""
 
-    def near_off(est):
-        return {**est, **{t: cand.point[t] + 0.03 * _range(t)[2] for t in cand.tested}}
-
     def _range(name):
         return search_range(model, name) or (-np.inf, np.inf, 0.1)
+
+    def near_off(est):
+        return {**est, **{t: cand.point[t] + 0.03 * _range(t)[2] for t in cand.tested}}
 
     ests = list(score.estimates)
     proposals = [near_off(ests[0]), ests[0]]
@@ -595,7 +597,7 @@ def diagnose(
     by_name = {s.effect: s for s in scores}
     level = alpha / len(cands)
     refits, control, reference = {}, None, result.nmse
-    bandwidth = max(1, round(recording.fps / _f0(result, recording)))
+    bandwidth = _bandwidth(recording)
     sse_scale = float(np.sum(np.square(recording.area)))
     if refit:
         control = refit_with(result, recording, iterations=iterations)
