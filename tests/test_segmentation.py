@@ -64,6 +64,24 @@ def test_static_dark_shadow_is_ignored(clip):
     assert _scores(segment_video(shadowed).area, truth)[0] <= 0.03
 
 
+def test_one_frame_blob_is_dropped_by_temporal_consistency(clip):
+    """A dark glint in one closed frame, inside the glottis's region: without the temporal
+    check it is measured as an opening; with it, the frame stays closed."""
+    video, truth = clip
+    seg = segment_video(video)
+    closed = np.flatnonzero(truth == 0)
+    # a closed frame whose neighbours are closed too, and a spot inside the glottis's region
+    i = next(int(k) for k in closed if truth[k - 1] == 0 and truth[k + 1] == 0)
+    rows, cols = np.nonzero(seg.masks.any(axis=0))
+    r, c = int(np.median(rows)), int(np.median(cols))
+    glint = video.astype(np.float32).copy()
+    glint[i, r - 2 : r + 3, c - 2 : c + 3] = 0.0
+    assert segment_video(glint, temporal=False).area[i] >= 20
+    consistent = segment_video(glint)
+    assert consistent.area[i] == 0
+    np.testing.assert_allclose(_scores(consistent.area, truth), _scores(seg.area, truth), rtol=0.01)
+
+
 def test_recording_from_video_and_npy(clip, tmp_path):
     video, truth = clip
     path = tmp_path / "clip.npy"

@@ -346,6 +346,9 @@ def _bounds(names, model, bounds):
         ref = float(params[n])
         if _is_linear(model, n, ref):
             a, b, scale = search_range(model, n) or (0.0, 1.0, 0.1)
+            # a warm start may sit outside a term's default range (a phase past pi after a
+            # polish): the default range then widens to include it; a user's bounds do not
+            a, b = min(a, ref), max(b, ref)
             if bounds and n in bounds:
                 a, b = bounds[n]
             if not (a <= ref <= b and a < b):
