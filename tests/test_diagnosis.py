@@ -220,7 +220,8 @@ def test_hidden_effect_is_found(case):
 
 def test_score_only_diagnosis_and_its_report(tmp_path):
     """Without refits the ranking is by score p-value; the report is written with its
-    figures and names every candidate (hidden gap, N3, no noise: the gap ranks first)."""
+    figures and names every candidate (hidden gap, N3, 1 px noise: the gap ranks first);
+    `diagnosis.extend` adds the gap and recovers it."""
     rec = demo_recording("N3", noise_px=1.0, effect=GlottalGap(a_gap=0.008))
     result = vfjax.fit(vfjax.preset("N3"), rec, params=("S", "K", "C_f"), iterations=20,
                        progress=False)  # fmt: skip
@@ -233,3 +234,8 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
         assert f"| {name} |" in text
     assert (tmp_path / f"{rec.name}_rounds.png").stat().st_size > 1000
     assert (tmp_path / f"{rec.name}_round1_compare.png").exists()
+    # the plain API: add the effect to the fitted model and refit from the current fit
+    extended = vfjax.diagnosis.extend(result, rec, GlottalGap(), iterations=20)
+    assert extended.model.has(GlottalGap)
+    assert extended.nmse < 0.5 * result.nmse
+    assert extended.params["a_gap"] == pytest.approx(0.008, rel=0.2)

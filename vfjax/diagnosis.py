@@ -654,7 +654,7 @@ def _evidence(score: EffectScore, refit: "EffectRefit | None") -> float:
 
 def _verdict(d: Diagnosis) -> str:
     before = d.nmse_before
-    floor = f"noise floor about {d.noise_nmse:.2%}"
+    floor = f"noise floor about {d.noise_nmse:.3%}"
     lines = []
     if d.control is not None and d.control.nmse < 0.8 * d.result.nmse:
         lines.append(f"The fit was not the best the model can do: a refit without any effect "
