@@ -20,7 +20,7 @@ def _scores(area, truth):
     big = truth >= 0.1 * truth.max()
     closed = truth == 0
     median_rel = np.median(np.abs(area[big] - truth[big]) / truth[big])
-    closed_ok = np.mean(area[closed] <= 0.01 * truth.max())
+    closed_ok = np.mean(area[closed] <= 0.01 * truth.max()) if closed.any() else np.nan
     return median_rel, closed_ok
 
 
@@ -80,6 +80,25 @@ def test_one_frame_blob_is_dropped_by_temporal_consistency(clip):
     consistent = segment_video(glint)
     assert consistent.area[i] == 0
     np.testing.assert_allclose(_scores(consistent.area, truth), _scores(seg.area, truth), rtol=0.01)
+
+
+def test_posterior_gap_is_kept_open(clip):
+    """A part of the glottis that never closes (an ellipse beyond its end at the open
+    glottis's grey level in every frame) has no darkness against its own brightness over
+    time; it is found as a persistent gap and counted in every frame."""
+    video, truth = clip
+    union = segment_video(video).masks.any(axis=0)
+    assert not segment_video(video).masks[truth == 0].any()  # clip_a itself: no gap
+    rows, cols = np.nonzero(union)
+    end, mid = rows.max(), int(np.median(cols[rows >= rows.max() - 3]))
+    yy, xx = np.mgrid[: video.shape[1], : video.shape[2]]
+    gap = (((yy - end - 4) / 4.0) ** 2 + ((xx - mid) / 2.5) ** 2 <= 1) & ~union
+    gapped = video.astype(np.float32).copy()
+    gapped[:, gap] = np.median(video[:, union][video[:, union] < 60])
+    seg = segment_video(gapped)
+    np.testing.assert_array_equal(seg.area[truth == 0], gap.sum())
+    assert _scores(seg.area, truth + gap.sum())[0] <= 0.03
+    assert segment_video(gapped, posterior_gap=False).area[truth == 0].max() == 0
 
 
 def test_recording_from_video_and_npy(clip, tmp_path):

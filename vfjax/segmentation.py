@@ -19,6 +19,10 @@ Method, for a (frames, height, width) grey video:
    glottis. Frames whose darkness never reaches the threshold are closed: area 0.
 7. Temporal consistency: a component that no neighbouring frame's glottis comes within two
    pixels of (a one-frame blob from flicker or a glint) is dropped.
+8. Posterior gap: a part of the glottis that never closes has no darkness against its own
+   brightness over time. Pixels darker than the surrounding tissue by more than the
+   threshold in every frame, adjoining the glottis beyond one of its ends and no wider than
+   it, are added to every frame's mask (a static shadow beside the glottis is not).
 
 Returns per-frame masks and areas (pixels).
 """
@@ -96,6 +100,36 @@ def _temporally_consistent(masks, reach=2):
     return out
 
 
+def _persistent_gap(tissue, open_grey, union, reach=2):
+    """Pixels dark in every frame that continue the glottis along its long axis (a posterior
+    gap: the glottis never closes there). Each pixel's darkness is measured against its own
+    brightness over time, so a permanently open part of the glottis has none; here the
+    persistently dark pixels (darker than the surrounding tissue by more than the threshold)
+    that adjoin the glottis beyond one of its ends, no wider than the glottis, are found.
+    Persistently dark: brightness over time (``tissue``) nearer the open glottis's grey level
+    (``open_grey``) than the surrounding tissue's.
+    A static shadow beside the glottis lies off its axis and is not taken."""
+    if union.sum() < 5:
+        return np.zeros_like(union)
+    level = np.median(tissue[~union])
+    static = (tissue < 0.5 * (level + open_grey)) & ~union
+    if not static.any():
+        return np.zeros_like(union)
+    pts = np.argwhere(union).astype(float)
+    centre = pts.mean(axis=0)
+    _, vecs = np.linalg.eigh(np.cov((pts - centre).T))
+    along, side = (pts - centre) @ vecs[:, 1], np.abs((pts - centre) @ vecs[:, 0])
+    low, high, half_width = along.min(), along.max(), np.percentile(side, 95)
+    # the corridor that continues the glottis beyond its two ends, no wider than it
+    grid = np.indices(union.shape).reshape(2, -1).T - centre
+    a = (grid @ vecs[:, 1]).reshape(union.shape)
+    w = np.abs(grid @ vecs[:, 0]).reshape(union.shape)
+    corridor = ((a > high - reach) | (a < low + reach)) & (w <= half_width + reach)
+    lab, _ = ndimage.label(static & corridor)
+    touching = np.unique(lab[ndimage.binary_dilation(union, iterations=reach) & (lab > 0)])
+    return np.isin(lab, touching) & (lab > 0)
+
+
 def segment_video(
     video,
     *,
@@ -104,6 +138,7 @@ def segment_video(
     min_size: int = 3,
     roi_pad: int = 8,
     temporal: bool = True,
+    posterior_gap: bool = True,
     progress: bool = False,
 ) -> Segmentation:
     """Glottis masks and areas from a (frames, height, width) grey video.
@@ -116,6 +151,8 @@ def segment_video(
         roi_pad: pixels added around the moving region.
         temporal: enforce temporal consistency: drop components that no neighbouring frame's
             glottis comes within 2 pixels of (one-frame blobs).
+        posterior_gap: add the persistently dark pixels that continue the glottis beyond one
+            of its ends, in every frame (a glottis that never closes there).
         progress: show a progress bar over the frames.
     """
     from skimage import filters, measure, morphology
@@ -184,6 +221,15 @@ def segment_video(
         masks[i, r0:r1, c0:c1] = m
     if temporal:
         masks[:, r0:r1, c0:c1] = _temporally_consistent(masks[:, r0:r1, c0:c1])
+    if posterior_gap and masks.any():
+        # a window wider than the ROI: a gap that never closes does not move, so the ROI
+        # (what moves) can end where the gap begins
+        g0, g1 = max(r0 - 2 * roi_pad, 0), min(r1 + 2 * roi_pad, v.shape[1])
+        h0, h1 = max(c0 - 2 * roi_pad, 0), min(c1 + 2 * roi_pad, v.shape[2])
+        window = np.percentile(v[:, g0:g1, h0:h1], tissue_percentile, axis=0)
+        open_grey = float(np.median(v[masks]))
+        gap = _persistent_gap(window, open_grey, masks[:, g0:g1, h0:h1].any(axis=0))
+        masks[:, g0:g1, h0:h1] |= gap[None]
     area = masks.sum(axis=(1, 2)).astype(float)
     if area.max() == 0:
         warnings.warn("no glottis found in any frame: the area is zero throughout", stacklevel=2)
