@@ -20,9 +20,9 @@ Method, for a (frames, height, width) grey video:
 7. Temporal consistency: a component that no neighbouring frame's glottis comes within two
    pixels of (a one-frame blob from flicker or a glint) is dropped.
 8. Posterior gap: a part of the glottis that never closes has no darkness against its own
-   brightness over time. Pixels darker than the surrounding tissue by more than the
-   threshold in every frame, adjoining the glottis beyond one of its ends and no wider than
-   it, are added to every frame's mask (a static shadow beside the glottis is not).
+   brightness over time. Pixels whose brightness over time is nearer the open glottis's grey
+   than the surrounding tissue's, adjoining the glottis beyond one of its ends and no wider
+   than it, are added to every frame's mask (a static shadow beside the glottis is not).
 
 Returns per-frame masks and areas (pixels).
 """
@@ -103,12 +103,10 @@ def _temporally_consistent(masks, reach=2):
 def _persistent_gap(tissue, open_grey, union, reach=2):
     """Pixels dark in every frame that continue the glottis along its long axis (a posterior
     gap: the glottis never closes there). Each pixel's darkness is measured against its own
-    brightness over time, so a permanently open part of the glottis has none; here the
-    persistently dark pixels (darker than the surrounding tissue by more than the threshold)
-    that adjoin the glottis beyond one of its ends, no wider than the glottis, are found.
-    Persistently dark: brightness over time (``tissue``) nearer the open glottis's grey level
-    (``open_grey``) than the surrounding tissue's.
-    A static shadow beside the glottis lies off its axis and is not taken."""
+    brightness over time, so a permanently open part of the glottis has none. Found instead:
+    the persistently dark pixels (brightness over time, ``tissue``, nearer the open glottis's
+    grey level ``open_grey`` than the surrounding tissue's) that adjoin the glottis beyond one
+    of its ends, no wider than it. A static shadow beside the glottis lies off its axis."""
     if union.sum() < 5:
         return np.zeros_like(union)
     level = np.median(tissue[~union])
