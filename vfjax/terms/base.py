@@ -100,7 +100,8 @@ class AbstractPressure(AbstractTerm):
     """A transformation of the subglottal pressure over time."""
 
     def pressure(self, t: ArrayLike, mean_pressure: ArrayLike) -> Array:
-        """Pressure (dyne/cm²) at time ``t`` (s) given the steady pressure ``mean_pressure``."""
+        """Pressure (dyne/cm²) at time ``t`` (s, from the recording's first frame; negative
+        during the warm-up) given the steady pressure ``mean_pressure``."""
         raise NotImplementedError
 
 

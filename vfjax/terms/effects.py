@@ -69,7 +69,8 @@ class PressureModulation(AbstractPressure):
     Arguments:
         a_pm: relative modulation depth a, in [0, 1).
         f_m: modulation frequency (Hz).
-        phi: modulation phase at t = 0 (rad).
+        phi: modulation phase at the first frame of the recording (rad): the simulator
+            gives time-dependent terms the time since the first frame.
     """
 
     a_pm: ArrayLike = eqx.field(default=0.0, converter=as_float)
