@@ -180,7 +180,7 @@ CASES = {
         ("a_pm", 0.08),
     ),  # fmt: skip
     "MucosalDelay": ("N3", MucosalDelay(tau=4e-4), None, ("tau", 4e-4)),
-    "FlowSeparation": ("N3", None, FlowSeparation, None),
+    "FlowSeparation": ("N3", None, FlowSeparation, ("fs_strength", 1.0)),
     "ClosureHold": ("N1", None, ClosureHold, ("t_c", None)),
 }
 DEFAULT = ()  # the whole matrix is slow (about 2 minutes a case); run with -m slow

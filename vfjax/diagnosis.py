@@ -53,7 +53,7 @@ import numpy as np
 from scipy import stats
 
 from .compare import Comparison, compare, noise_level
-from .fit import FitResult, fit_many, search_range
+from .fit import FitResult, fit_many, initial_model, search_range
 from .integrator import simulate
 from .recording import Recording
 from .terms.base import AbstractTerm
@@ -505,14 +505,19 @@ def refit_with(
     swarm_size: int = 24,
     lm_steps: int = 30,
     box: float = 1.6,
+    anchor: dict | None = None,
 ) -> FitResult:
     """Refit ``result``'s parameters plus the candidate's, from each of ``starts`` (values of
-    the candidate's parameters), as one batch (`vfjax.fit_many`); returns the best refit.
-    Without a candidate: the same refit of the fitted model alone (the control).
+    the candidate's parameters, and of fitted ones where given), as one batch
+    (`vfjax.fit_many`); returns the best refit. Without a candidate: the same refit of the
+    fitted model alone (the control).
 
     Each start is particle 0 of a small swarm (``swarm_size`` particles, ``iterations``
     iterations) that searches the effect's parameters over their range (`search_range`)
-    and the fitted ones within a factor ``box`` of their current values; then LM.
+    and the fitted ones within a factor ``box`` of their current values, and of their
+    ``anchor`` values if given (e.g. the fit's starting model: an effect that changes the
+    dynamics, such as the flow separation, can move K and C_f far from a fit made without
+    it); then LM.
     """
     names = tuple(result.params)
     base = result.model
@@ -521,13 +526,27 @@ def refit_with(
         names += cand.tested + cand.extra
         base = base.with_term(cand.term)
     models = [base.set(**{k: v for k, v in s.items() if k in names}) for s in starts]
-    bounds = {n: (v / box, v * box) for n, v in result.params.items()
-              if v > 0 and search_range(base, n) is None}  # fmt: skip
+    anchor = {n: v for n, v in (anchor or {}).items() if n in result.params and v > 0}
+    bounds = {}
+    for n, v in result.params.items():
+        if v > 0 and search_range(base, n) is None:
+            a = anchor.get(n, v)
+            bounds[n] = (min(v, a) / box, max(v, a) * box)
     s = result.settings
     fits = fit_many(models, [recording] * len(models), params=names, iterations=iterations,
                     swarm_size=swarm_size, lm_steps=lm_steps, warmup=s["warmup"],
                     substeps=s["substeps"], bounds=bounds)  # fmt: skip
     return min(fits, key=lambda f: f.nmse if np.isfinite(f.nmse) else np.inf)
+
+
+def _anchor(result: FitResult, recording: Recording) -> dict:
+    """The fitted parameters' values in the recording's starting model (`initial_model`),
+    a second centre for the refits' search; empty if there is none."""
+    try:
+        start = initial_model(recording).params()
+    except (ValueError, KeyError):
+        return {}
+    return {n: float(start[n]) for n in result.params if n in start}
 
 
 def effective_frames(residual: np.ndarray, bandwidth: int) -> float:
@@ -600,7 +619,9 @@ def diagnose(
     bandwidth = _bandwidth(recording)
     sse_scale = float(np.sum(np.square(recording.area)))
     if refit:
-        control = refit_with(result, recording, iterations=iterations)
+        anchor = _anchor(result, recording)
+        control = refit_with(result, recording, starts=({}, anchor), iterations=iterations,
+                             anchor=anchor)  # fmt: skip
         reference = min(result.nmse, control.nmse)
         if progress:
             print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
@@ -609,7 +630,9 @@ def diagnose(
         for cand, score in zip(cands, scores):
             model = result.model.with_term(cand.term)
             begin = _starts(cand, model, recording, score, starts)
-            fitted = refit_with(result, recording, cand, begin, iterations=iterations)
+            begin.append({**begin[0], **anchor})
+            fitted = refit_with(result, recording, cand, begin, iterations=iterations,
+                                anchor=anchor)  # fmt: skip
             values = {n: fitted.params[n] for n in cand.tested + cand.extra}
             fall = 1.0 - fitted.nmse / reference if reference > 0 else 0.0
             p = _refit_p_value(reference * sse_scale, fitted.nmse * sse_scale, n_eff,
