@@ -163,8 +163,9 @@ class EffectScore:
         explained: share of the residual sum of squares that the effect's columns explain
             (after projection), a linearised measure of how much it could help.
         estimates: one-step (Gauss-Newton) estimates of the effect's parameters from the
-            off-value, at the grid settings with the largest statistics (best first, at most
-            five; one without a grid).
+            off-value: at the two grid settings with the largest statistics, then at the
+            best setting of each quarter of the grid (refit starts spread over it; one
+            estimate without a grid).
     """
 
     effect: str
@@ -406,9 +407,14 @@ def _candidate_score(cand, result, sampler, r, q, n_fitted, variance, bandwidth)
     for gi, setting in enumerate(cand.grid):
         je = np.concatenate([cols[gi, di] for di in range(n_dir)], axis=1)
         found.append((*_score(r, q, je, n_fitted, variance, bandwidth), setting))
+    # estimates: the two best grid settings, then the best of each quarter of the grid (a
+    # misfit far from the linear regime can put the truth anywhere on it: refit starts)
+    cuts = np.array_split(np.arange(len(found)), min(4, len(found)))
+    quarters = [max((found[i] for i in q), key=lambda f: f[2]) for q in cuts]
     found.sort(key=lambda f: -f[2])
     u, v, lm, explained, step, setting = found[0]
-    estimates = tuple(_estimate(cand, f[4], f[5]) for f in found[:5])
+    chosen = found[:2] + [f for f in quarters if not any(f is g for g in found[:2])]
+    estimates = tuple(_estimate(cand, f[4], f[5]) for f in chosen)
     if cand.one_sided:
         z = float(u[0] / math.sqrt(v[0, 0])) if v[0, 0] > 0 else 0.0
         statistic, p = z * abs(z), float(stats.norm.sf(z))
@@ -467,6 +473,19 @@ def _starts(cand: Candidate, model, recording, score: EffectScore, n: int) -> li
         return {**est, **{t: cand.point[t] + 0.03 * _range(t)[2] for t in cand.tested}}
 
     ests = list(score.estimates)
+    if len(cand.grid) > 1:
+        # far from the linear regime the one-step estimates mislead: add a lattice over the
+        # grid (four settings) and, for a sine/cosine pair, three phases, with the tested
+        # parameters one range-scale step off
+        phases = [k for k in cand.directions[0] if all(k in d for d in cand.directions)]
+        lattice = [
+            {**ests[0], **g, **{t: cand.point[t] + _range(t)[2] for t in cand.tested},
+             **{k: _wrap(cand.directions[0][k] + a) for k in phases}}
+            for g in (cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, 4))
+            for a in ((0.0, 2.1, -2.1) if phases else (0.0,))
+        ]  # fmt: skip
+        ests += lattice
+        n += len(ests) - 1
     proposals = [near_off(ests[0]), ests[0]]
     guess = type(cand.term).guess(recording)
     if guess:  # values the data show directly (a closure duration) come second
