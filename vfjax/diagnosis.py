@@ -463,8 +463,9 @@ def _as_candidates(model, candidates):
 # ----------------------------------------------------------------------------------- refits
 def _starts(cand: Candidate, model, recording, score: EffectScore, n: int) -> list[dict]:
     """Starting values of the effect's parameters for the refit: just off the off-value (the
-    current fit), then the one-step estimates (at the next-best grid settings, or scaled),
-    clipped into the parameters' ranges."""
+    current fit), then the one-step estimates (at the next-best grid settings, or scaled)
+    and, for a candidate with a grid, a lattice over the grid and the phases; all clipped
+    into the parameters' ranges."""
 
     def _range(name):
         return search_range(model, name) or (-np.inf, np.inf, 0.1)
