@@ -640,7 +640,8 @@ def diagnose(
     sse_scale = float(np.sum(np.square(recording.area)))
     if refit:
         anchor = _anchor(result, recording)
-        control = refit_with(result, recording, starts=({}, anchor), iterations=iterations,
+        anchored = [anchor] if anchor else []  # no anchor: no second, identical start
+        control = refit_with(result, recording, starts=[{}] + anchored, iterations=iterations,
                              anchor=anchor)  # fmt: skip
         reference = min(result.nmse, control.nmse)
         if progress:
@@ -650,7 +651,7 @@ def diagnose(
         for cand, score in zip(cands, scores):
             model = result.model.with_term(cand.term)
             begin = _starts(cand, model, recording, score, starts)
-            begin.append({**begin[0], **anchor})
+            begin += [{**begin[0], **a} for a in anchored]
             fitted = refit_with(result, recording, cand, begin, iterations=iterations,
                                 anchor=anchor)  # fmt: skip
             values = {n: fitted.params[n] for n in cand.tested + cand.extra}
