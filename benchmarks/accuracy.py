@@ -1,14 +1,19 @@
 """Accuracy study: GAW error against a far finer reference, per RK4 step size.
 
 For each parameter set (N1-N4, each also with K and C_f moved by ±30 % and ±80 %), the
-201-frame GAW at dt = 1 / (k fps) for k in {1, 2, 4, 8, 16, 32, 64, 128} is compared with
+201-frame GAW at dt = 1 / (k fps) for k in {1, 2, 3, 4, 6, 8, 16, 32, 64, 128} is compared with
 vfjax at k = 1024 by NMSE = sum((a - ref)²) / sum(ref²). The paper's practice, a fixed step
 at k = 128 with per-stage masks (benchmarks/numba_reference.py), is measured against the same
 reference.
 
-Run: python benchmarks/accuracy.py
+A second table samples each subject's ±80 % box in K, C_f, S, t_c and P_s at random (400 sets
+each, reference k = 64) and counts the sets whose NMSE exceeds 1e-4 per k: how robust a step is
+across the parameter space a fit explores, not only at the named sets.
+
+Run: python benchmarks/accuracy.py [--box-sets 400]
 """
 
+import argparse
 import pathlib
 import sys
 
@@ -20,7 +25,8 @@ import vfjax
 
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 FPS, N = 4000.0, 201
-KS = (1, 2, 4, 8, 16, 32, 64, 128)
+KS = (1, 2, 3, 4, 6, 8, 16, 32, 64, 128)
+BOX_KS = (3, 4, 6, 8)
 REF_K = 1024
 VARIANTS = {"": (1.0, 1.0), " K-30%": (0.7, 1.0), " K+30%": (1.3, 1.0),
             " Cf-30%": (1.0, 0.7), " Cf+30%": (1.0, 1.3), " K-80%": (0.2, 1.0),
@@ -31,7 +37,40 @@ def nmse(a, ref):
     return float(np.sum((np.asarray(a) - ref) ** 2) / np.sum(ref**2))
 
 
+def box_study(n_sets, seed=0):
+    """NMSE per k over random sets in each subject's ±80 % box (reference k = 64)."""
+    rng = np.random.default_rng(seed)
+    names = ("K", "C_f", "S", "t_c", "P_s")
+    errors = {k: [] for k in BOX_KS}
+    for subject in ("N1", "N2", "N3", "N4"):
+        model = vfjax.preset(subject)
+        p = model.params()
+        factors = jnp.asarray(rng.uniform(0.2, 1.8, (n_sets, len(names))))
+
+        def run(k, model=model, p=p, factors=factors):
+            def one(f):
+                m = model.set(**{n: p[n] * f[i] for i, n in enumerate(names)})
+                return vfjax.simulate(m, FPS, N, substeps=k).area
+
+            return np.asarray(jax.jit(jax.vmap(one))(factors))
+
+        ref = run(64)
+        for k in BOX_KS:
+            errors[k].extend(np.sum((run(k) - ref) ** 2, axis=1) / np.sum(ref**2, axis=1))
+    print(f"\nRandom sets in the ±80 % box of K, C_f, S, t_c, P_s ({n_sets} per subject, "
+          "reference k=64)")  # fmt: skip
+    print("k".ljust(4) + "median".rjust(10) + "99th pct".rjust(10) + "worst".rjust(10)
+          + "   sets with NMSE > 1e-4")  # fmt: skip
+    for k in BOX_KS:
+        e = np.asarray(errors[k])
+        print(f"{k:<4d}{np.median(e):10.1e}{np.percentile(e, 99):10.1e}{e.max():10.1e}"
+              f"   {int(np.sum(e > 1e-4))} of {e.size}")  # fmt: skip
+
+
 def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--box-sets", type=int, default=400, help="random sets per subject")
+    args = ap.parse_args()
     from numba_reference import simulate_gaw
 
     factors = jnp.asarray(list(VARIANTS.values()))
@@ -70,6 +109,8 @@ def main():
         f"smallest k with NMSE < 1e-4 on every set: {min(ok) if ok else 'none'}; "
         f"vfjax default: {vfjax.DEFAULT_SUBSTEPS}"
     )
+    if args.box_sets > 0:
+        box_study(args.box_sets)
 
 
 if __name__ == "__main__":

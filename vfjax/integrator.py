@@ -121,18 +121,28 @@ class Simulation(eqx.Module):
     dense: DenseOutput
 
 
+# The regime flags travel in the scan's carry as bits of one integer: one array to update
+# per step instead of five (each a separate kernel on CPU).
+_FLOW, _INNER, _CLOSING, _HOLD, _DIVERGED = 1, 2, 4, 8, 16
+
+
+def _pack(flow, inner, closing, hold, diverged):
+    bits = (flow, inner, closing, hold, diverged)
+    weights = (_FLOW, _INNER, _CLOSING, _HOLD, _DIVERGED)
+    return sum(jnp.where(b, w, 0) for b, w in zip(bits, weights)).astype(jnp.int32)
+
+
 class _Carry(NamedTuple):
     t: Array
     x: Array
     v: Array
     hold_left: Array
     step: Array  # index of the last grid point reached
-    flow: Array
-    inner: Array
-    closing: Array
-    hold: Array
-    diverged: Array
-    n_events: Array
+    flags: Array  # regime flags, packed (`_pack`)
+    advances: Array  # iterations that advanced: grid steps plus events
+
+    def flag(self, bit):
+        return (self.flags & bit) != 0
 
 
 def _phase_code(flow, inner, closing, hold):
@@ -205,23 +215,25 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
     has_hold = model.closure_duration is not None
 
     def body(c: _Carry, _):
-        active = (c.step < n_steps) & ~c.diverged
-        one = jnp.where(c.n_events >= 0, 1.0, 2.0)  # always 1: see `_computed_once`
+        c_flow, c_inner, c_closing = c.flag(_FLOW), c.flag(_INNER), c.flag(_CLOSING)
+        c_hold, c_diverged = c.flag(_HOLD), c.flag(_DIVERGED)
+        active = (c.step < n_steps) & ~c_diverged
+        one = jnp.where(c.advances >= 0, 1.0, 2.0)  # always 1: see `_computed_once`
         t_target = (c.step + 1).astype(float) * h
         dt = t_target - c.t
 
         # Free motion: trial RK4 step with the regime flags frozen.
-        mode = (c.flow, c.inner, c.closing)
+        mode = (c_flow, c_inner, c_closing)
         x1, v1, a0, a1 = _rk4(model, c.t, c.x, c.v, dt, mode, xc, origin)
         event, theta, xe, ve, is_flow, is_inner, is_dir = _locate_event(
-            c.x, c.v, c.flow, c.inner, c.closing, x1, v1, a0, a1, dt, x0, xc, one
+            c.x, c.v, *mode, x1, v1, a0, a1, dt, x0, xc, one
         )
-        flow, inner, closing = c.flow ^ is_flow, c.inner ^ is_inner, c.closing ^ is_dir
+        flow, inner, closing = c_flow ^ is_flow, c_inner ^ is_inner, c_closing ^ is_dir
         # A velocity reversal can fall beyond a surface the same step grazed (in and out of
         # contact within one step): the position flags then follow the reversal point.
         flow = jnp.where(is_dir, xe > x0, flow)
         inner = jnp.where(is_dir, xe <= xc, inner)
-        starts_hold = is_dir & c.closing & (xe <= x0) if has_hold else jnp.zeros((), bool)
+        starts_hold = is_dir & c_closing & (xe <= x0) if has_hold else jnp.zeros((), bool)
         free = _Carry(
             t=jnp.where(event, c.t + theta * dt, t_target),
             x=jnp.where(event, xe, x1),
@@ -232,12 +244,10 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
             if has_hold
             else c.hold_left,
             step=jnp.where(event, c.step, c.step + 1),
-            flow=flow & ~starts_hold,
-            inner=inner | starts_hold,
-            closing=closing & ~starts_hold,
-            hold=starts_hold,
-            diverged=c.diverged,
-            n_events=c.n_events + event.astype(c.n_events.dtype),
+            flags=_pack(
+                flow & ~starts_hold, inner | starts_hold, closing & ~starts_hold, starts_hold, False
+            ),  # fmt: skip
+            advances=c.advances,
         )
 
         # Closure hold: the state rests until the hold runs out, then the fold is released.
@@ -248,15 +258,11 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
             v=jnp.zeros_like(c.v),
             hold_left=jnp.where(release, 0.0, c.hold_left - dt),
             step=jnp.where(release, c.step, c.step + 1),
-            flow=c.x > x0,
-            inner=c.x <= xc,
-            closing=jnp.zeros((), bool),
-            hold=~release,
-            diverged=c.diverged,
-            n_events=c.n_events + release.astype(c.n_events.dtype),
+            flags=_pack(c.x > x0, c.x <= xc, False, ~release, False),
+            advances=c.advances,
         )
 
-        new = jax.tree.map(lambda a, b: jnp.where(c.hold, a, b), held, free)
+        new = jax.tree.map(lambda a, b: jnp.where(c_hold, a, b), held, free)
         new = new._replace(**{k: _computed_once(getattr(new, k), one)
                               for k in ("t", "x", "v", "hold_left")})  # fmt: skip
         bad = (
@@ -265,11 +271,13 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
             | (jnp.abs(new.x) > _X_LIMIT)
             | (jnp.abs(new.v) > _V_LIMIT)
         )
-        new = new._replace(diverged=bad)
         keep = ~active | bad
         out = jax.tree.map(lambda old, nw: jnp.where(keep, old, nw), c, new)
-        out = out._replace(diverged=c.diverged | (active & bad))
-        code = _phase_code(c.flow, c.inner, c.closing, c.hold)
+        out = out._replace(
+            flags=out.flags | jnp.where(active & bad, _DIVERGED, 0),
+            advances=c.advances + (~keep).astype(c.advances.dtype),
+        )
+        code = _phase_code(c_flow, c_inner, c_closing, c_hold)
         return out, (out.t, out.x, out.v, code)
 
     return body
@@ -348,12 +356,8 @@ def simulate(
         v=v_init,
         hold_left=jnp.zeros((), float),
         step=jnp.zeros((), jnp.int32),
-        flow=x_init > x0,
-        inner=x_init <= xc,
-        closing=v_init < 0,
-        hold=jnp.zeros((), bool),
-        diverged=jnp.zeros((), bool),
-        n_events=jnp.zeros((), jnp.int32),
+        flags=_pack(x_init > x0, x_init <= xc, v_init < 0, False, False),
+        advances=jnp.zeros((), jnp.int32),
     )
     origin = t_start + jnp.asarray(time_shift, dtype=float)
     body = _iteration(model, h, n_steps, x0, xc, origin)
@@ -378,8 +382,8 @@ def simulate(
         displacement=jnp.where(valid, x, nan),
         velocity=jnp.where(valid, dense.velocity(times), nan),
         phase=dense.phase_at(times),
-        diverged=end.diverged,
-        complete=(end.step >= n_steps) & ~end.diverged,
-        n_events=end.n_events,
+        diverged=end.flag(_DIVERGED),
+        complete=(end.step >= n_steps) & ~end.flag(_DIVERGED),
+        n_events=end.advances - end.step,
         dense=dense,
     )
