@@ -7,7 +7,11 @@ Figures printed, all in float64, from one run on the same machine:
   and with the batch split over the machine's cores (one XLA host device per core);
 - particle-steps per second at an equal step (k = 128 for both).
 
-Run: python benchmarks/throughput.py [--repeats 5]
+Each vfjax figure is timed alternately with the numba loop (best of ``--repeats`` each) and its
+ratio is taken against the numba rate measured alongside it: on a shared machine whose load
+drifts during the run, a ratio against a numba rate measured minutes earlier would mislead.
+
+Run: python benchmarks/throughput.py [--repeats 7]
 """
 
 import os
@@ -51,9 +55,19 @@ def best_time(fn, repeats):
     return min(times)
 
 
+def paired_times(fn, baseline, repeats):
+    """Best times of ``fn`` and ``baseline``, timed alternately, so that a change of the
+    machine's load during the run (a shared machine) moves both and not only the ratio."""
+    t_fn, t_base = [], []
+    for _ in range(repeats):
+        t_base.append(best_time(baseline, 1))
+        t_fn.append(best_time(fn, 1))
+    return min(t_fn), min(t_base)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--substeps", type=int, default=vfjax.DEFAULT_SUBSTEPS)
     args = ap.parse_args()
     from numba_reference import simulate_gaw
@@ -62,11 +76,12 @@ def main():
     p = {k: float(v) for k, v in model.params().items()}
     numba_args = (p["K"], p["C_f"], p["S"], p["t_c"], p["P_s"], p["M"], p["l"], FPS, N)
     simulate_gaw(*numba_args, 128)  # compile
-    n_rec = 50
-    t_numba = (
-        best_time(lambda: [simulate_gaw(*numba_args, 128) for _ in range(n_rec)], args.repeats)
-        / n_rec
-    )
+    n_rec = 20
+
+    def numba_batch():
+        return [simulate_gaw(*numba_args, 128) for _ in range(n_rec)]
+
+    t_numba = best_time(numba_batch, args.repeats) / n_rec
     numba_rps = 1.0 / t_numba
     devices = jax.devices()
     print(f"machine: {os.cpu_count()} cores; jax {jax.__version__}, {len(devices)} CPU devices")
@@ -90,10 +105,14 @@ def main():
             t0 = time.perf_counter()
             jax.block_until_ready(fn(batch))
             compile_s = time.perf_counter() - t0
-            t = best_time(lambda fn=fn, batch=batch: fn(batch), args.repeats)
+            t, t_base = paired_times(
+                lambda fn=fn, batch=batch: fn(batch), numba_batch, args.repeats
+            )
+            t_numba = min(t_numba, t_base / n_rec)
             print(
                 f"  batch {b:4d}, {label:7s}: {b / t:8.0f} recordings/s "
-                f"({b / t / numba_rps:5.1f}x numba)   compile + first run {compile_s:.2f} s"
+                f"({b / t * t_base / n_rec:5.1f}x numba timed alongside: "
+                f"{n_rec / t_base:.0f}/s)   compile + first run {compile_s:.2f} s"
             )
 
     steps = (N - 1) * 128
