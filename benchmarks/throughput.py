@@ -4,7 +4,9 @@ numba loop of the same model at the paper's step (k = 128 steps per frame, one t
 Figures printed, all in float64, from one run on the same machine:
 - compile time of the batched simulator;
 - recordings per second for batches of 1, 64 and 256 at vfjax's default step, on one core
-  and with the batch split over the machine's cores (one XLA host device per core);
+  and with the batch split over the machine's cores (one XLA host device per core), either
+  sharded (one SPMD program) or one Python thread per device, each running the one-core
+  program on its share (XLA releases the GIL while it runs);
 - particle-steps per second at an equal step (k = 128 for both).
 
 Each vfjax figure is timed alternately with the numba loop (best of ``--repeats`` each) and its
@@ -24,6 +26,7 @@ import argparse  # noqa: E402
 import pathlib  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from concurrent.futures import ThreadPoolExecutor  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -94,25 +97,40 @@ def main():
         return jax.jit(jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=k).area))
 
     split = NamedSharding(Mesh(np.array(devices), ("batch",)), PartitionSpec("batch"))
+    pool = ThreadPoolExecutor(len(devices))
     print(f"vfjax, default step k={args.substeps} (dt = 1/({args.substeps} fps)):")
     for b in (1, 64, 256):
-        placements = [("1 core", devices[0])]
+        fn = runner(args.substeps)
+        full = batch_of(model, b)
+        cases = [("1 core", jax.device_put(full, devices[0]), fn)]
         if b % len(devices) == 0 and len(devices) > 1:
-            placements.append((f"{len(devices)} cores", split))
-        for label, where in placements:
-            batch = jax.device_put(batch_of(model, b), where)
-            fn = runner(args.substeps)
+            # SPMD: one program, the batch sharded over the devices
+            cases.append((f"{len(devices)} cores, sharded", jax.device_put(full, split), fn))
+            # one thread per device, each running the same program on its share of the batch
+            share = b // len(devices)
+            parts = [
+                jax.device_put(
+                    jax.tree.map(lambda a, i=i, n=share: a[i * n : (i + 1) * n], full), d
+                )
+                for i, d in enumerate(devices)
+            ]
+
+            def threaded(parts, fn=fn):
+                return list(pool.map(lambda part: jax.block_until_ready(fn(part)), parts))
+
+            cases.append((f"{len(devices)} cores, threads", parts, threaded))
+        for label, batch, call in cases:
             t0 = time.perf_counter()
-            jax.block_until_ready(fn(batch))
+            jax.block_until_ready(call(batch))
             compile_s = time.perf_counter() - t0
             t, t_base = paired_times(
-                lambda fn=fn, batch=batch: fn(batch), numba_batch, args.repeats
+                lambda call=call, batch=batch: call(batch), numba_batch, args.repeats
             )
             t_numba = min(t_numba, t_base / n_rec)
             print(
-                f"  batch {b:4d}, {label:7s}: {b / t:8.0f} recordings/s "
+                f"  batch {b:4d}, {label:17s}: {b / t:8.0f} recordings/s "
                 f"({b / t * t_base / n_rec:5.1f}x numba timed alongside: "
-                f"{n_rec / t_base:.0f}/s)   compile + first run {compile_s:.2f} s"
+                f"{n_rec / t_base:.0f}/s)   first run {compile_s:.2f} s"
             )
 
     steps = (N - 1) * 128
