@@ -126,9 +126,10 @@ class Simulation(eqx.Module):
 _FLOW, _INNER, _CLOSING, _HOLD, _DIVERGED = 1, 2, 4, 8, 16
 
 
-def _pack(flow, inner, closing, hold, diverged):
-    bits = (flow, inner, closing, hold, diverged)
-    weights = (_FLOW, _INNER, _CLOSING, _HOLD, _DIVERGED)
+def _pack(flow, inner, closing, hold):
+    """The regime flags as one integer (the divergence bit is or-ed in where it is found)."""
+    bits = (flow, inner, closing, hold)
+    weights = (_FLOW, _INNER, _CLOSING, _HOLD)
     return sum(jnp.where(b, w, 0) for b, w in zip(bits, weights)).astype(jnp.int32)
 
 
@@ -245,8 +246,8 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
             else c.hold_left,
             step=jnp.where(event, c.step, c.step + 1),
             flags=_pack(
-                flow & ~starts_hold, inner | starts_hold, closing & ~starts_hold, starts_hold, False
-            ),  # fmt: skip
+                flow & ~starts_hold, inner | starts_hold, closing & ~starts_hold, starts_hold
+            ),
             advances=c.advances,
         )
 
@@ -258,7 +259,7 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
             v=jnp.zeros_like(c.v),
             hold_left=jnp.where(release, 0.0, c.hold_left - dt),
             step=jnp.where(release, c.step, c.step + 1),
-            flags=_pack(c.x > x0, c.x <= xc, False, ~release, False),
+            flags=_pack(c.x > x0, c.x <= xc, False, ~release),
             advances=c.advances,
         )
 
@@ -356,7 +357,7 @@ def simulate(
         v=v_init,
         hold_left=jnp.zeros((), float),
         step=jnp.zeros((), jnp.int32),
-        flags=_pack(x_init > x0, x_init <= xc, v_init < 0, False, False),
+        flags=_pack(x_init > x0, x_init <= xc, v_init < 0, False),
         advances=jnp.zeros((), jnp.int32),
     )
     origin = t_start + jnp.asarray(time_shift, dtype=float)
