@@ -56,7 +56,7 @@ def box_study(n_sets, seed=0):
 
         ref = run(64)
         for k in BOX_KS:
-            errors[k].extend(np.sum((run(k) - ref) ** 2, axis=1) / np.sum(ref**2, axis=1))
+            errors[k].extend(nmse(a, r) for a, r in zip(run(k), ref))
     print(f"\nRandom sets in the ±80 % box of K, C_f, S, t_c, P_s ({n_sets} per subject, "
           "reference k=64)")  # fmt: skip
     print("k".ljust(4) + "median".rjust(10) + "99th pct".rjust(10) + "worst".rjust(10)
