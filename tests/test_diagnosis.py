@@ -26,6 +26,7 @@ from vfjax import (
 from vfjax.datasets import demo_recording
 from vfjax.diagnosis import (
     Candidate,
+    _candidate_columns,
     _effect_columns,
     _estimate,
     _hac,
@@ -67,10 +68,27 @@ def test_gap_sensitivity_is_the_camera_scale(shared_dir):
     result = vfjax.fit(vfjax.preset("N3"), rec, params=("S",), iterations=0, progress=False)
     model = result.model.with_term(GlottalGap())
     shift = jnp.asarray(result.time_shift)
-    cols = _effect_columns(_sampler(result, rec), _stack([model]), ("a_gap",), jnp.zeros(1), shift)
+    cols = _effect_columns(_sampler(result, rec), _stack([model]), ("a_gap",), jnp.zeros((1, 1)),
+                           shift)  # fmt: skip
     cols = np.asarray(cols)[0, :, 0]
     open_ = result.fitted_gaw(rec) > 0
     assert np.allclose(cols[open_], 100.0 * result.params["S"], rtol=1e-12)
+
+
+def test_candidates_sensitivities_from_one_extended_model():
+    """All candidates' columns come from one model extended by all of them (each at its
+    score point, the others off): the same as from the model extended by each alone."""
+    rec = demo_recording("N3", noise_px=0.0)
+    result = vfjax.fit(vfjax.preset("N3"), rec, params=("S",), iterations=0, progress=False)
+    cands = [Candidate.of(k) for k in (GlottalGap, PressureModulation, MucosalDelay)]
+    sampler = _sampler(result, rec)
+    together = _candidate_columns(result, sampler, cands)
+    assert [c.shape for c in together] == [(1, 201, 1), (38, 201, 1), (1, 201, 1)]
+    for cand, cols in list(zip(cands, together))[1:]:
+        alone = _candidate_columns(result, sampler, [cand])[0]
+        scale = np.abs(alone).max()
+        assert scale > 0
+        np.testing.assert_allclose(cols, alone, rtol=0, atol=1e-8 * scale, err_msg=cand.name)
 
 
 def test_effective_frames_of_white_and_correlated_residuals():
@@ -153,6 +171,9 @@ def test_shared_gap_case(shared_dir):
     refit = d.refits["GlottalGap"]
     assert refit.nmse <= 0.5 * d.nmse_before
     assert refit.values["a_gap"] == pytest.approx(answer["effect_values"]["GlottalGap"], rel=0.2)
+    # all candidates were refitted in one batch; each refit's model carries its own only
+    assert refit.result.model.has(GlottalGap)
+    assert not any(refit.result.model.has(k) for k in (MucosalDelay, PressureModulation))
     # a second round on the extended fit finds nothing more
     d2 = vfjax.diagnose(refit.result, rec)
     assert d2.needed == [], d2.verdict

@@ -94,10 +94,11 @@ def test_same_key_same_result_and_callback():
     truth = vfjax.preset("N1")
     rec = _recording(truth, t_start=0.03)
     seen = []
+    start = truth.set(K=1.3 * float(truth.params()["K"]))  # the swarm has work to do
     kw = dict(iterations=10, chunk=5, polish=False, progress=False, swarm_size=16)
-    a = fit(truth, rec, key=jax.random.key(7), callback=lambda i, c: seen.append((i, c)), **kw)
-    b = fit(truth, rec, key=jax.random.key(7), **kw)
-    c = fit(truth, rec, key=jax.random.key(8), **kw)
+    a = fit(start, rec, key=jax.random.key(7), callback=lambda i, c: seen.append((i, c)), **kw)
+    b = fit(start, rec, key=jax.random.key(7), **kw)
+    c = fit(start, rec, key=jax.random.key(8), **kw)
     assert a.params == b.params and a.pso_trace == b.pso_trace
     assert a.pso_trace != c.pso_trace
     assert [i for i, _ in seen] == [5, 10]
@@ -124,14 +125,65 @@ def test_json_round_trip_without_loss(n1_fit, tmp_path):
 
 
 def test_fit_many_matches_single_fits():
+    """Three recordings of known K, and a fourth fitted with C_f held at its true value: one
+    batch, each fit recovers its truth; the held parameter stays put and is not reported."""
     truth = vfjax.preset("N1")
+    factors = [0.9, 1.0, 1.1, 1.05]
     recs = [_recording(truth.set(K=truth.params()["K"] * f), t_start=0.03 + 0.001 * i, name=f"r{i}")
-            for i, f in enumerate([0.9, 1.0, 1.1])]  # fmt: skip
-    results = fit_many(_start(truth), recs)
-    for f, r in zip([0.9, 1.0, 1.1], results):
+            for i, f in enumerate(factors)]  # fmt: skip
+    c_f = float(truth.params()["C_f"])
+    models = [_start(truth)] * 3 + [_start(truth).set(C_f=c_f)]
+    results = fit_many(models, recs, hold=[(), (), (), ("C_f",)])
+    for f, r in zip(factors, results):
         assert r.params["K"] / float(truth.params()["K"]) == pytest.approx(f, rel=0.01)
         assert r.params["S"] == pytest.approx(43.7988, rel=0.01)
         assert r.nmse < 1e-4
+    assert "C_f" not in results[3].params and "C_f" not in results[3].settings["bounds"]
+    assert float(results[3].model.params()["C_f"]) == c_f
+    with pytest.raises(ValueError, match="held"):
+        fit_many(models[0], recs[:1], hold=[("S",)])
+
+
+def test_swarm_cost_is_the_best_shift_of_direct_simulations():
+    """The swarm reads every time shift off one simulation; each candidate shift, simulated
+    directly with that delay, gives the same cost, and none does better."""
+    from vfjax.fit import _prepare
+
+    truth = vfjax.preset("N3")
+    rec = _recording(truth, t_start=0.0237, noise_px=1.0)
+    problem, _, _, _ = _prepare(_start(truth), rec, ("S", "K", "C_f"), 0.02, 4, None)
+    z = np.array([0.1, -0.2])
+    cost, shift, s = problem.profile(z)
+    direct = []
+    for j in range(problem.n_shifts):
+        zz = np.r_[z, j / (2 * FPS) / float(problem.period)]
+        g, ok = problem.shape(zz)
+        assert ok
+        direct.append(float(np.sum((rec.area - problem.projected_scale(g) * g) ** 2)))
+    direct = np.array(direct) / float(np.sum(rec.area**2))
+    assert float(cost) == pytest.approx(direct.min(), rel=1e-9)
+    assert round(float(shift * problem.period) * 2 * FPS) == int(np.argmin(direct))
+    y, start_cost = problem.start(z)
+    assert float(np.sum(problem.residual(y) ** 2)) == pytest.approx(float(start_cost), rel=1e-9)
+
+
+def test_lm_linearisation_is_the_residuals_jacobian():
+    """The LM sees the residual through a rule that hands it the Jacobian matrix: equal to
+    forward-mode AD of the residual itself, and to central finite differences."""
+    from vfjax.fit import _prepare, _residual
+
+    truth = vfjax.preset("N1")
+    rec = _recording(truth, t_start=0.031)
+    problem, _, _, _ = _prepare(_start(truth), rec, ("S", "K", "C_f"), 0.02, 4, None)
+    y = np.array([-0.2, 0.3, 0.4, -0.1])
+    jac = np.asarray(jax.jacfwd(_residual)(y, problem))
+    np.testing.assert_allclose(jac, np.asarray(jax.jacfwd(problem.residual)(y)), rtol=1e-10,
+                               atol=1e-14)  # fmt: skip
+    h = 1e-6
+    for i in range(y.size):
+        e = np.eye(y.size)[i] * h
+        fd = (np.asarray(problem.residual(y + e)) - np.asarray(problem.residual(y - e))) / (2 * h)
+        assert np.linalg.norm(jac[:, i] - fd) <= 0.02 * np.linalg.norm(fd), i
 
 
 def test_bad_input_is_refused():

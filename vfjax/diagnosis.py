@@ -23,8 +23,11 @@ off, or a user's own term), two questions:
    together (a modulation's sine and cosine phase) are tested jointly (``score_directions``).
 
 2. **Quick refit**: the model with the effect is refitted, warm-started from the current fit
-   and from the score test's one-step estimate of the effect's parameters (a few starts,
-   simulated as one batch with `vfjax.fit_many`), giving the error each effect would reach.
+   and from the score test's one-step estimate of the effect's parameters (a few starts),
+   giving the error each effect would reach. All candidates' starts (and the control's) run
+   as one `vfjax.fit_many` batch of the model extended by every candidate, each start with
+   the other candidates held at their off-values (`refit_each`): one compiled program
+   serves the whole diagnosis.
 
 An effect is *needed* when the evidence is significant at ``alpha`` (Bonferroni-corrected
 over the candidates; the evidence is twice the smaller p-value of the score test and of an F
@@ -313,16 +316,17 @@ def _fitted_columns(sampler, model, names, shift):
 
 
 @eqx.filter_jit
-def _effect_columns(sampler, models, names, point, shift):
-    """d GAW / d(tested parameters) at ``point`` for a batch of models (one per variant)."""
+def _effect_columns(sampler, models, names, points, shift):
+    """d GAW / d(tested parameters ``names``) for a batch of models, each at its row of
+    ``points``."""
 
-    def one(model):
+    def one(model, point):
         def g(p):
             return sampler.gaw(model.set(**{n: p[i] for i, n in enumerate(names)}), shift)
 
         return jax.jacfwd(g)(point)
 
-    return jax.vmap(one)(models)
+    return jax.vmap(one)(models, points)
 
 
 def _stack(models):
@@ -381,8 +385,42 @@ def score_tests(
     r = np.asarray(recording.area, dtype=float) - g0
     q, _ = np.linalg.qr(jf)
     bandwidth = _bandwidth(recording)
-    return [_candidate_score(c, result, sampler, r, q, jf.shape[1], variance, bandwidth)
-            for c in cands]  # fmt: skip
+    columns = _candidate_columns(result, sampler, cands)
+    return [_candidate_score(c, cols, r, q, jf.shape[1], variance, bandwidth)
+            for c, cols in zip(cands, columns)]  # fmt: skip
+
+
+def _extended(model, cands):
+    """``model`` with every candidate's term added (at its off-value), or None if several
+    candidates' parameter names clash."""
+    for c in cands:
+        model = model.with_term(c.term)
+    declared = [n for t in model.terms for n in t.parameters]
+    return model if len(cands) < 2 or len(declared) == len(set(declared)) else None
+
+
+def _candidate_columns(result, sampler, cands) -> list[np.ndarray]:
+    """Each candidate's GAW sensitivities, (settings, frames, tested), one setting per
+    grid point and direction (`Candidate.grid`, `Candidate.directions`).
+
+    One compiled program serves all candidates: the fitted model extended by all of them,
+    in one variant per candidate and setting, where that candidate sits at its setting and
+    score point and the others at their off-values (where they change nothing)."""
+    wide = _extended(result.model, cands)
+    if wide is None:
+        return [_candidate_columns(result, sampler, [c])[0] for c in cands]
+    tested = tuple(dict.fromkeys(n for c in cands for n in c.tested))
+    off = {n: float(type(c.term).off_values[n]) for c in cands for n in c.tested}
+    variants, points, rows = [], [], []
+    for c in cands:
+        at = {**off, **c.point}
+        settings = [{**g, **d} for g in c.grid for d in c.directions]
+        rows.append(slice(len(variants), len(variants) + len(settings)))
+        variants += [wide.set(**setting) for setting in settings]
+        points += [[at[n] for n in tested]] * len(settings)
+    cols = np.asarray(_effect_columns(sampler, _stack(variants), tested, jnp.asarray(points),
+                                      jnp.asarray(result.time_shift)))  # fmt: skip
+    return [cols[r][:, :, [tested.index(n) for n in c.tested]] for c, r in zip(cands, rows)]
 
 
 def _bandwidth(recording) -> int:
@@ -394,12 +432,7 @@ def _bandwidth(recording) -> int:
     return max(1, round(recording.fps / f0)) if np.isfinite(f0) else 10
 
 
-def _candidate_score(cand, result, sampler, r, q, n_fitted, variance, bandwidth):
-    base = result.model.with_term(cand.term)
-    variants = [base.set(**g, **d) for g in cand.grid for d in cand.directions]
-    point = jnp.asarray([cand.point[n] for n in cand.tested])
-    cols = np.asarray(_effect_columns(sampler, _stack(variants), cand.tested, point,
-                                      jnp.asarray(result.time_shift)))  # fmt: skip
+def _candidate_score(cand, cols, r, q, n_fitted, variance, bandwidth):
     n_dir = len(cand.directions)
     # (grid, directions, frames, tested) -> per grid point: (frames, directions * tested)
     cols = cols.reshape(len(cand.grid), n_dir, r.size, len(cand.tested))
@@ -537,26 +570,69 @@ def refit_with(
     and the fitted ones within a factor ``box`` of their current values, and of their
     ``anchor`` values if given (e.g. the fit's starting model: an effect that changes the
     dynamics, such as the flow separation, can move K and C_f far from a fit made without
-    it); then LM.
+    it); then LM. `refit_each` runs several candidates' refits as one batch.
     """
+    return refit_each(result, recording, [(candidate, starts)], iterations=iterations,
+                      swarm_size=swarm_size, lm_steps=lm_steps, box=box,
+                      anchor=anchor)[0]  # fmt: skip
+
+
+def refit_each(
+    result: FitResult,
+    recording: Recording,
+    jobs: Sequence[tuple],
+    *,
+    iterations: int = 30,
+    swarm_size: int = 24,
+    lm_steps: int = 30,
+    box: float = 1.6,
+    anchor: dict | None = None,
+) -> list[FitResult]:
+    """`refit_with` for several candidates at once: ``jobs`` is a list of ``(candidate or
+    None, starts)``; returns the best refit of each job.
+
+    All jobs run as one `vfjax.fit_many` batch, so one compiled program serves them all:
+    every start simulates the fitted model extended by all the jobs' candidates, those of
+    other jobs held at their off-values (where they change nothing). Each returned fit's
+    model carries its own candidate only. If the candidates' parameter names clash, each job
+    runs as its own batch.
+    """
+    cands = [None if c is None else c if isinstance(c, Candidate) else Candidate.of(c)
+             for c, _ in jobs]  # fmt: skip
     names = tuple(result.params)
-    base = result.model
-    if candidate is not None:
-        cand = candidate if isinstance(candidate, Candidate) else Candidate.of(candidate)
-        names += cand.tested + cand.extra
-        base = base.with_term(cand.term)
-    models = [base.set(**{k: v for k, v in s.items() if k in names}) for s in starts]
+    own = [names + (() if c is None else c.tested + c.extra) for c in cands]
+    wide = _extended(result.model, [c for c in cands if c is not None])
+    if wide is None:
+        return [refit_each(result, recording, [job], iterations=iterations,
+                           swarm_size=swarm_size, lm_steps=lm_steps, box=box,
+                           anchor=anchor)[0] for job in jobs]  # fmt: skip
+    added = [type(t) for t in wide.terms if not result.model.has(type(t))]
+    union = tuple(dict.fromkeys(n for o in own for n in o))
+    models, holds, owner = [], [], []
+    for j, (_, starts) in enumerate(jobs):
+        for s in starts:
+            models.append(wide.set(**{k: v for k, v in s.items() if k in own[j]}))
+            holds.append(tuple(n for n in union if n not in own[j]))
+            owner.append(j)
     anchor = {n: v for n, v in (anchor or {}).items() if n in result.params and v > 0}
     bounds = {}
     for n, v in result.params.items():
-        if v > 0 and search_range(base, n) is None:
+        if v > 0 and search_range(wide, n) is None:
             a = anchor.get(n, v)
             bounds[n] = (min(v, a) / box, max(v, a) * box)
     s = result.settings
-    fits = fit_many(models, [recording] * len(models), params=names, iterations=iterations,
+    fits = fit_many(models, [recording] * len(models), params=union, iterations=iterations,
                     swarm_size=swarm_size, lm_steps=lm_steps, warmup=s["warmup"],
-                    substeps=s["substeps"], bounds=bounds)  # fmt: skip
-    return min(fits, key=lambda f: f.nmse if np.isfinite(f.nmse) else np.inf)
+                    substeps=s["substeps"], bounds=bounds, hold=holds)  # fmt: skip
+    best = []
+    for j, c in enumerate(cands):
+        mine = [f for f, o in zip(fits, owner) if o == j]
+        fit = min(mine, key=lambda f: f.nmse if np.isfinite(f.nmse) else np.inf)
+        # the other jobs' candidates sit at their off-values: drop them from the model
+        dormant = [k for k in added if c is None or k is not type(c.term)]
+        model = fit.model.without(*dormant) if dormant else fit.model
+        best.append(dataclasses.replace(fit, model=model))
+    return best
 
 
 def _anchor(result: FitResult, recording: Recording) -> dict:
@@ -641,19 +717,19 @@ def diagnose(
     if refit:
         anchor = _anchor(result, recording)
         anchored = [anchor] if anchor else []  # no anchor: no second, identical start
-        control = refit_with(result, recording, starts=[{}] + anchored, iterations=iterations,
-                             anchor=anchor)  # fmt: skip
+        jobs = [(None, [{}] + anchored)]
+        for cand, score in zip(cands, scores):
+            model = result.model.with_term(cand.term)
+            begin = _starts(cand, model, recording, score, starts)
+            jobs.append((cand, begin + [{**begin[0], **a} for a in anchored]))
+        control, *fitted_each = refit_each(result, recording, jobs, iterations=iterations,
+                                           anchor=anchor)  # fmt: skip
         reference = min(result.nmse, control.nmse)
         if progress:
             print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
         before = result if result.nmse <= control.nmse else control
         n_eff = effective_frames(recording.area - before.fitted_gaw(recording), bandwidth)
-        for cand, score in zip(cands, scores):
-            model = result.model.with_term(cand.term)
-            begin = _starts(cand, model, recording, score, starts)
-            begin += [{**begin[0], **a} for a in anchored]
-            fitted = refit_with(result, recording, cand, begin, iterations=iterations,
-                                anchor=anchor)  # fmt: skip
+        for cand, score, fitted in zip(cands, scores, fitted_each):
             values = {n: fitted.params[n] for n in cand.tested + cand.extra}
             fall = 1.0 - fitted.nmse / reference if reference > 0 else 0.0
             p = _refit_p_value(reference * sse_scale, fitted.nmse * sse_scale, n_eff,

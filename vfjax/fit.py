@@ -67,8 +67,8 @@ def search_range(model: VocalFoldModel, name: str) -> tuple[float, float, float]
     return LINEAR.get(name)
 
 
-_SHIFT_GRID = 0.005  # s
-_SHIFT_GRID_POINTS = 48  # shifts tried per particle (about one frame apart)
+_SHIFT_GRID = 0.005  # s: the largest time shift is rounded up to a multiple of this
+_SHIFTS_PER_FRAME = 2  # the swarm tries time shifts half a frame apart
 _DEFAULT_SWARM = SwarmSettings()
 _AREA_TO_PX_SCALE = {"mm2": 1.0, "cm2": 0.01}  # S that turns model mm² per mm² into the unit
 
@@ -148,6 +148,7 @@ class _Problem(eqx.Module):
     reference: jax.Array  # (n_params,) starting values of the non-S fitted parameters
     scale: jax.Array  # (n_params,) coordinate scale of the linear ones (unused for log ones)
     floor: jax.Array  # (n_params,) physical lower limit of the linear ones (-inf: none)
+    free: jax.Array  # (n_params,) 1 for a fitted parameter, 0 for one held (`fit_many`'s hold)
     s_reference: jax.Array  # () starting (or fixed) S
     period: jax.Array  # () T0 estimate (s)
     s_bounds: jax.Array  # (2,) search bounds of S (px/mm²)
@@ -163,6 +164,8 @@ class _Problem(eqx.Module):
     def model_at(self, z, log_s=None):
         # linear coordinates of parameters that cannot be negative (a gap, a delay) are held
         # at zero from below, so that an unconstrained LM step stays physical
+        # a held parameter's coordinate is multiplied by 0: it stays at its reference value
+        z = z[: len(self.names)] * self.free
         values = {
             n: jnp.maximum(self.reference[i] + self.scale[i] * z[i], self.floor[i])
             if lin
@@ -175,6 +178,10 @@ class _Problem(eqx.Module):
     def shift(self, z):
         return z[len(self.names)] * self.period
 
+    @property
+    def held(self) -> tuple[str, ...]:
+        return tuple(n for n, f in zip(self.names, np.asarray(self.free)) if f == 0)
+
     def shape(self, z):
         """Simulated GAW at S = 1 (clipped at 0) and whether the simulation is valid."""
         sim = simulate(self.model_at(z, log_s=None).set(S=1.0), self.fps, self.n_frames,
@@ -186,38 +193,56 @@ class _Problem(eqx.Module):
 
     def projected_scale(self, g):
         """The S minimising the squared error for the shape g (closed form), kept positive."""
+        return self._scale(jnp.sum(self.measured * g), jnp.sum(g * g))
+
+    def _scale(self, mg, gg):
+        # from the products measured . g and g . g (any shape, elementwise)
         if not self.fit_s:
-            return self.s_reference
-        s = jnp.sum(self.measured * g) / jnp.maximum(jnp.sum(g * g), 1e-300)
+            return jnp.broadcast_to(self.s_reference, jnp.shape(mg))
+        s = mg / jnp.maximum(gg, 1e-300)
         return jnp.clip(s, self.s_bounds[0], self.s_bounds[1])
 
     def profile(self, z_phys):
         """Best cost over a grid of time shifts, S projected for each; returns (cost, shift
-        as a fraction of T0). One simulation serves every shift: the frames are read from
-        its dense output."""
+        as a fraction of T0, projected S).
+
+        One simulation serves every shift. The shifts are half a frame apart, so every
+        shifted frame time lies on one regular grid of half-frame spacing: the observed area
+        is read from the dense output once on that grid, and the products that the
+        projected S and the cost need at every shift are correlations of the measured GAW
+        with the grid's even and odd samples. (Observation terms act pointwise in time.)"""
         model = self.model_at(jnp.concatenate([z_phys, jnp.zeros(1)])).set(S=1.0)
         sim = simulate(model, self.fps, self.n_frames, substeps=self.substeps,
                        t_start=self.warmup, max_time_shift=self.max_time_shift)  # fmt: skip
         ok = sim.complete & ~sim.diverged
-        shifts = jnp.linspace(0.0, self.max_time_shift, _SHIFT_GRID_POINTS)
+        q, n = _SHIFTS_PER_FRAME, self.n_shifts
+        length = q * (-(-n // q) + self.n_frames - 1)  # whole rows of q samples
+        times = sim.time[0] + jnp.arange(length) / (q * self.fps)
+        fine = model.observe(times, sim.dense.displacement(times), sim.dense.displacement)
+        fine = jnp.maximum(jnp.where(ok, fine, 0.0), 0.0)
+        # shift j = q a + b reads the frames from parity[b][a:]: correlations over a
+        parity = fine.reshape(-1, q).T
 
-        def cost_at(shift):
-            times = sim.time + shift
-            g = model.observe(times, sim.dense.displacement(times), sim.dense.displacement)
-            g = jnp.maximum(jnp.where(ok, g, 0.0), 0.0)
-            s = self.projected_scale(g)
-            return jnp.sum((self.measured - s * g) ** 2) / jnp.sum(self.measured**2)
+        def per_shift(signal, kernel):
+            out = jax.vmap(lambda p: jnp.correlate(p, kernel, mode="valid"))(signal)
+            return out.T.reshape(-1)[:n]
 
-        costs = jax.vmap(cost_at)(shifts)
+        mg = per_shift(parity, self.measured)
+        gg = per_shift(parity**2, jnp.ones(self.n_frames))
+        s = self._scale(mg, gg)
+        mm = jnp.sum(self.measured**2)
+        costs = jnp.maximum(mm - 2.0 * s * mg + s * s * gg, 0.0) / mm
         i = jnp.argmin(costs)
-        return jnp.where(ok, costs[i], jnp.inf), shifts[i] / self.period
+        shift = i / (q * self.fps)
+        return jnp.where(ok, costs[i], jnp.inf), shift / self.period, s[i]
+
+    @property
+    def n_shifts(self) -> int:
+        """Number of time shifts the swarm tries (half a frame apart, up to the largest)."""
+        return int(math.floor(self.max_time_shift * _SHIFTS_PER_FRAME * self.fps + 1e-9)) + 1
 
     def swarm_cost(self, z_phys):
         return self.profile(z_phys)[0]
-
-    def with_best_shift(self, z_phys):
-        """Swarm point (physical parameters) -> full point with its best grid shift."""
-        return jnp.concatenate([z_phys, self.profile(z_phys)[1][None]])
 
     def residual(self, y):
         """Residuals whose sum of squares is the NMSE; y = (z..., log S) or z."""
@@ -228,12 +253,14 @@ class _Problem(eqx.Module):
         # outside the valid range: a large, finite residual (LM rejects the step)
         return jnp.where(ok, r, 1.0)
 
-    def start_y(self, z):
-        """Swarm point -> LM point: append log(S / S_ref) for the projected S."""
-        if not self.fit_s:
-            return z
-        g, _ = self.shape(z)
-        return jnp.concatenate([z, jnp.log(self.projected_scale(g) / self.s_reference)[None]])
+    def start(self, z_phys):
+        """Swarm point (physical parameters) -> LM point (with its best grid shift and, if
+        fitted, log(S / S_ref) of the projected S) and its cost."""
+        cost, shift, s = self.profile(z_phys)
+        y = jnp.concatenate([z_phys, shift[None]])
+        if self.fit_s:
+            y = jnp.concatenate([y, jnp.log(s / self.s_reference)[None]])
+        return y, cost
 
 
 def estimate_closure_duration(recording: Recording, levels=(0.1, 0.2)) -> float | None:
@@ -377,7 +404,7 @@ def _bounds_in_units(problem, i, a, b):
     return [ref * math.exp(float(a)), ref * math.exp(float(b))]
 
 
-def _prepare(model, recording, params, warmup, substeps, bounds):
+def _prepare(model, recording, params, warmup, substeps, bounds, held=()):
     if not isinstance(recording, Recording):
         raise TypeError(f"recording must be a vfjax.Recording, got {type(recording).__name__}")
     params = tuple(params)
@@ -403,7 +430,13 @@ def _prepare(model, recording, params, warmup, substeps, bounds):
                              f"{recording.unit}, so S is fixed and cannot be fitted")  # fmt: skip
         model = model.set(S=_AREA_TO_PX_SCALE[recording.unit])
     names = tuple(n for n in params if n != "S")
+    held = tuple(held)
+    if any(n not in names for n in held):
+        raise ValueError(f"only fitted parameters other than S can be held, got {held} "
+                         f"for params {params}")  # fmt: skip
     lo, hi = _bounds(names, model, bounds)
+    free = np.array([n not in held for n in names], dtype=float)
+    lo, hi = lo * free, hi * free  # a held parameter's search interval is [0, 0]
     s_lo, s_hi = _bounds(("S",), model, bounds) if fit_s else (None, None)
     # static (it sizes the integration): rounded up to 5 ms so that recordings of similar
     # f0 share one compiled fit
@@ -416,6 +449,7 @@ def _prepare(model, recording, params, warmup, substeps, bounds):
         floor=jnp.asarray(
             [0.0 if (search_range(model, n) or (-1.0,))[0] >= 0 else -jnp.inf for n in names]
         ),  # fmt: skip
+        free=jnp.asarray(free),
         linear=tuple(_is_linear(model, n, float(model.params()[n])) for n in names),
         s_reference=jnp.asarray(float(model.params()["S"])),
         period=jnp.asarray(period),
@@ -434,8 +468,10 @@ def _prepare(model, recording, params, warmup, substeps, bounds):
 
 
 @eqx.filter_jit
-def _with_best_shift(problem, z_phys):
-    return problem.with_best_shift(z_phys)
+def _start(problem, z_phys):
+    """The swarm's best point -> the LM's starting point (best shift, projected S), and
+    its cost."""
+    return problem.start(z_phys)
 
 
 @eqx.filter_jit
@@ -454,7 +490,29 @@ def _lm_solver(rtol, atol):
 
 
 def _lm_fn(y, problem):
-    return problem.residual(y), None
+    return _residual(y, problem), None
+
+
+@jax.custom_jvp
+def _residual(y, problem):
+    """`_Problem.residual`, whose linearisation is its Jacobian matrix.
+
+    optimistix linearises the residual function (`jax.linearize`) at every LM step and keeps
+    the linearisation in its state. Through the simulator that keeps every intermediate of
+    the scan (hundreds of arrays per integration step): slow to compile and to carry. This
+    rule computes the Jacobian columns at once (forward mode, one batched jvp) and returns
+    J @ dy, so the linearisation is one (frames, params) matrix. Differentiates in ``y``
+    only (the LM's variable)."""
+    return problem.residual(y)
+
+
+@_residual.defjvp
+def _residual_jvp(primals, tangents):
+    y, problem = primals
+    dy, _ = tangents
+    basis = jnp.eye(y.shape[0], dtype=y.dtype)
+    r, jac = jax.vmap(lambda t: jax.jvp(problem.residual, (y,), (t,)), out_axes=(None, 1))(basis)
+    return r, jac @ dy
 
 
 @eqx.filter_jit
@@ -469,8 +527,8 @@ def _lm_step(problem, y, state, rtol, atol):
     solver = _lm_solver(rtol, atol)
     y, state, _ = solver.step(_lm_fn, y, problem, {"jac": "fwd"}, state, frozenset())
     done, result = solver.terminate(_lm_fn, y, problem, {"jac": "fwd"}, state, frozenset())
-    r = problem.residual(y)
-    return y, state, done, result, jnp.sum(r * r)
+    # the state's residual is the one at the returned y (the step evaluated it)
+    return y, state, done, result, jnp.sum(state.f_info.residual**2)
 
 
 def _unpack(problem, y) -> tuple[VocalFoldModel, float]:
@@ -563,14 +621,11 @@ def fit(
             callback(done_iters, pso_trace[-1])
     t_pso = time.perf_counter() - t0
     n_sims = swarm_size * (1 + iterations)
-    best_z = _with_best_shift(problem, state.global_position)
 
     # Stage 2: the polish.
     t1 = time.perf_counter()
-    y = problem.start_y(best_z)
-    best_y = y
-    r = problem.residual(y)
-    best_cost = float(jnp.sum(r * r))
+    y, best_cost = _start(problem, state.global_position)
+    best_y, best_cost = y, float(best_cost)
     lm_trace = [best_cost]
     trace_times.append(time.perf_counter() - t_all)
     result_name = "not run"
@@ -614,11 +669,12 @@ def _make_result(
     """The `FitResult` of the fitted point ``y`` (shared by `fit` and `fit_many`)."""
     swarm_size, iterations, lm_steps, substeps, settings = swarm
     fitted, shift = _unpack(problem, y)
+    params = tuple(n for n in params if n not in problem.held)
     units = fitted.parameter_units()
     values = fitted.params()
     bounds = {n: _bounds_in_units(problem, i, a, b)
               for i, (n, a, b) in enumerate(zip(problem.names, np.asarray(lower),
-                                                np.asarray(upper)))}  # fmt: skip
+                                                np.asarray(upper))) if n in params}  # fmt: skip
     return FitResult(
         params={n: float(values[n]) for n in params},
         units={n: units[n] for n in params},
@@ -669,7 +725,6 @@ def fit_many(
     bounds: dict | None = None,
     swarm_size: int = 48,
     iterations: int = 60,
-    chunk: int = 10,
     key=None,
     polish: bool = True,
     lm_steps: int = 40,
@@ -678,13 +733,22 @@ def fit_many(
     warmup: float = 0.02,
     substeps: int = DEFAULT_SUBSTEPS,
     settings: SwarmSettings = _DEFAULT_SWARM,
+    hold: Sequence[Sequence[str]] | None = None,
 ) -> list[FitResult]:
     """Fit many recordings of one model structure as one batched job.
 
     Every PSO iteration simulates all particles of all recordings in one vmapped call, and the
     LM polish steps all recordings together. The recordings must share frame rate, frame count
     and area unit. ``model`` is one model for all, or one model per recording (of one
-    structure: the same terms; e.g. several starting points for one recording). Other
+    structure: the same terms; e.g. several starting points for one recording).
+
+    ``hold``, if given, names for each recording the parameters of ``params`` (S excepted)
+    that stay at that model's value: fits of different parameter subsets of one model then
+    share one batch and one compiled program (the diagnosis refits every candidate effect
+    this way, with the others held at their off-values). A held parameter is left out of its
+    `FitResult`'s ``params``.
+
+    The swarm stage runs as one compiled program (no progress bar, no callback). Other
     arguments as for `fit`; returns one `FitResult` per recording (timings are those of the
     whole batch).
     """
@@ -704,11 +768,17 @@ def fit_many(
                              f"{r.name} differs from {first.name}")  # fmt: skip
     t_all = time.perf_counter()
     key = jax.random.key(0) if key is None else key
+    hold = [()] * len(models) if hold is None else [tuple(h) for h in hold]
+    if len(hold) != len(models):
+        raise ValueError(f"got {len(hold)} hold lists for {len(recordings)} recordings")
     prepared = [
-        _prepare(m, r, params, warmup, substeps, bounds) for m, r in zip(models, recordings)
+        _prepare(m, r, params, warmup, substeps, bounds, h)
+        for m, r, h in zip(models, recordings, hold)
     ]
     shift = max(p.max_time_shift for p, _, _, _ in prepared)
-    problems = [dataclasses.replace(p, max_time_shift=shift) for p, _, _, _ in prepared]
+    linear = _common_coordinates([p for p, _, _, _ in prepared])
+    problems = [dataclasses.replace(p, max_time_shift=shift, linear=linear)
+                for p, _, _, _ in prepared]  # fmt: skip
     lowers = jnp.stack([lo for _, lo, _, _ in prepared])
     uppers = jnp.stack([hi for _, _, hi, _ in prepared])
     batch = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
@@ -716,19 +786,13 @@ def fit_many(
     keys = jax.random.split(key, len(problems))
 
     t0 = time.perf_counter()
-    state = _many_init(batch, lowers, uppers, keys, starts, swarm_size)
-    traces = [np.asarray(state.global_cost)[:, None]]
-    done = 0
-    while done < iterations:
-        n = min(chunk, iterations - done)
-        state, costs = _many_chunk(batch, lowers, uppers, settings, state, n)
-        traces.append(np.asarray(costs))
-        done += n
+    # the whole swarm stage (and the LM's starting points) is one compiled program
+    y, cost0, pso_traces = _many_search(batch, lowers, uppers, keys, starts, swarm_size,
+                                        settings, iterations)  # fmt: skip
+    pso_traces = np.asarray(pso_traces)
     t_pso = time.perf_counter() - t0
-    pso_traces = np.concatenate(traces, axis=1)
 
     t1 = time.perf_counter()
-    y, cost0 = _many_start(batch, state.global_position)
     best_y, best_cost = y, np.asarray(cost0)
     lm_traces = [best_cost.copy()]
     results = ["not run"] * len(problems)
@@ -780,29 +844,33 @@ def fit_many(
     ]
 
 
+def _common_coordinates(problems) -> tuple[bool, ...]:
+    """The coordinate (linear or log) of each parameter, shared by a batch: a held
+    parameter takes the one its fitted counterparts use (either keeps it at its value)."""
+    common = []
+    for i, name in enumerate(problems[0].names):
+        kinds = {p.linear[i] for p in problems if p.free[i]} or {problems[0].linear[i]}
+        if len(kinds) > 1:
+            raise ValueError(f"fit_many: {name} starts at 0 in some fits (linear search) and "
+                             "away from 0 in others (log search); start them alike")  # fmt: skip
+        common.append(kinds.pop())
+    return tuple(common)
+
+
 @eqx.filter_jit
-def _many_init(batch, lowers, uppers, keys, starts, swarm_size):
+def _many_search(batch, lowers, uppers, keys, starts, swarm_size, settings, iterations):
+    """The swarm stage of every fit in the batch, then each one's LM starting point and its
+    cost; returns (y, cost, best cost after each iteration)."""
+
     def one(p, lo, hi, k, s0):
-        return init_swarm(jax.vmap(p.swarm_cost), lo, hi, swarm_size, k, s0)
+        cost = jax.vmap(p.swarm_cost)
+        state = init_swarm(cost, lo, hi, swarm_size, k, s0)
+        first = state.global_cost[None]
+        state, trace = run_chunk(cost, lo, hi, settings, state, iterations)
+        y, cost = _start(p, state.global_position)
+        return y, cost, jnp.concatenate([first, trace])
 
     return jax.vmap(one)(batch, lowers, uppers, keys, starts)
-
-
-@eqx.filter_jit
-def _many_chunk(batch, lowers, uppers, settings, state, n):
-    def one(p, lo, hi, st):
-        return run_chunk(jax.vmap(p.swarm_cost), lo, hi, settings, st, n)
-
-    return jax.vmap(one)(batch, lowers, uppers, state)
-
-
-@eqx.filter_jit
-def _many_start(batch, z):
-    def one(p, z):
-        y = p.start_y(p.with_best_shift(z))
-        return y, jnp.sum(p.residual(y) ** 2)
-
-    return jax.vmap(one)(batch, z)
 
 
 @eqx.filter_jit

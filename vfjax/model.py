@@ -165,11 +165,12 @@ class VocalFoldModel(eqx.Module):
                 p = term.pressure(t, p)
         return p
 
-    def context(self, t, x, v, flow, inner, closing, xc) -> Context:
-        """The `Context` of the force terms at one instant and mode."""
+    def context(self, t, x, v, flow, inner, closing, xc, pressure=None) -> Context:
+        """The `Context` of the force terms at one instant and mode (``pressure``: the
+        subglottal pressure at ``t`` if already computed)."""
         s = self.subject
         aero = self.term(BernoulliForce)
-        pressure = self.pressure(t)
+        pressure = self.pressure(t) if pressure is None else pressure
         if aero is None:
             f_a = jnp.zeros_like(x)
         else:
@@ -195,9 +196,10 @@ class VocalFoldModel(eqx.Module):
             thickness=s.thickness,
         )
 
-    def acceleration(self, t, x, v, flow, inner, closing, xc) -> Array:
-        """dv/dt (cm/s²) = sum of the force terms / M, in the given (frozen) mode."""
-        ctx = self.context(t, x, v, flow, inner, closing, xc)
+    def acceleration(self, t, x, v, flow, inner, closing, xc, pressure=None) -> Array:
+        """dv/dt (cm/s²) = sum of the force terms / M, in the given (frozen) mode
+        (``pressure``: the subglottal pressure at ``t`` if already computed)."""
+        ctx = self.context(t, x, v, flow, inner, closing, xc, pressure)
         total = jnp.zeros_like(jnp.asarray(x, dtype=float))
         for term in self.terms:
             if isinstance(term, AbstractForce):
@@ -211,6 +213,11 @@ class VocalFoldModel(eqx.Module):
             if isinstance(term, AbstractObservation):
                 area = term.observe(t, area, displacement_at, self.subject.length)
         return area * 100.0 * self.S
+
+    @property
+    def varies_pressure(self) -> bool:
+        """Whether a pressure term makes the subglottal pressure depend on time."""
+        return any(isinstance(t, AbstractPressure) for t in self.terms)
 
     @property
     def needs_history(self) -> bool:
