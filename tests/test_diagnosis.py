@@ -195,15 +195,20 @@ CASES = {
     "GlottalGap": ("N3", GlottalGap(a_gap=0.008), None, ("a_gap", 0.008)),
     "CubicStiffness": ("N1", CubicStiffness(eta=3000.0), None, ("eta", 3000.0)),
     "PressureModulation": (
-        "N3",
+        "N1",  # at N1's pressure the modulation switches closure on and off (as syn_tremor's)
         PressureModulation(a_pm=0.08, f_m=10.0, phi=1.0),
         None,
         ("a_pm", 0.08),
     ),  # fmt: skip
     "MucosalDelay": ("N3", MucosalDelay(tau=4e-4), None, ("tau", 4e-4)),
-    "FlowSeparation": ("N3", None, FlowSeparation, ("fs_strength", 1.0)),
+    # the flow separation's strength trades off against C_f along a flat valley (from the
+    # truth, LM walks to fs_strength 1.8, C_f x1.75 at an equal NMSE): the GAW fixes their
+    # ratio, which is what comes back (N1: C_f large enough to pin it within a few %)
+    "FlowSeparation": ("N1", None, FlowSeparation, ("fs_strength / C_f", 1.0 / 7536.2)),
     "ClosureHold": ("N1", None, ClosureHold, ("t_c", None)),
 }
+#: what comes back, where it is not one parameter
+_RECOVERED = {"fs_strength / C_f": lambda p: p["fs_strength"] / p["C_f"]}
 DEFAULT = ()  # the whole matrix is slow (about 2 minutes a case); run with -m slow
 
 
@@ -220,17 +225,17 @@ def _hidden_case(case):
     return rec, result, vfjax.diagnose(result, rec), truth
 
 
-# Known gap (issue 5, open): the weak modulation on N3 is ranked first and its refit reaches
-# the noise floor, but the paper model already fits it to within 1.5 noise floors, so it is
-# not flagged as needed, and a_pm comes back about twice too large.
-_KNOWN_GAPS = {"PressureModulation": "weak modulation not flagged needed; a_pm not recovered"}
+# Known gap (issue 5, open): the modulation is found (ranked first, needed, most of the error
+# removed), but its depth does not come back. Over 100 ms (one modulation period) and with
+# closure jitter, depth, frequency and phase trade off: a long search (96 particles x 150
+# iterations) finds a = 0.12, f_m = 7.8 Hz fitting better than the truth itself (NMSE 0.014 %
+# against 0.050 %); the diagnosis's quick refit lands at a = 0.31. Only the recovery is an
+# expected failure; the detection is asserted.
+_KNOWN_GAPS = {"PressureModulation": "modulation depth not identifiable from one period"}
 
 
 def _marks(case):
-    marks = [] if case in DEFAULT else [pytest.mark.slow]
-    if case in _KNOWN_GAPS:
-        marks.append(pytest.mark.xfail(reason=_KNOWN_GAPS[case], strict=False))
-    return marks
+    return [] if case in DEFAULT else [pytest.mark.slow]
 
 
 @pytest.mark.xdist_group("diagnosis")
@@ -247,7 +252,11 @@ def test_hidden_effect_is_found(case):
         name, value = truth
         if value is None:  # the hold: the preset's own t_c
             value = float(vfjax.preset(CASES[case][0]).params()[name])
-        assert refit.values[name] == pytest.approx(value, rel=0.2)
+        found = refit.result.params
+        got = _RECOVERED[name](found) if name in _RECOVERED else found[name]
+        if case in _KNOWN_GAPS and got != pytest.approx(value, rel=0.2):
+            pytest.xfail(f"{_KNOWN_GAPS[case]}: {name} = {got:.4g}, truth {value:.4g}")
+        assert got == pytest.approx(value, rel=0.2), (name, found)
 
 
 def test_score_only_diagnosis_and_its_report(tmp_path):
