@@ -191,12 +191,10 @@ class _Problem(eqx.Module):
         g = jnp.where(ok, sim.area, 0.0)
         return jnp.maximum(g, 0.0), ok
 
-    def projected_scale(self, g):
-        """The S minimising the squared error for the shape g (closed form), kept positive."""
-        return self._scale(jnp.sum(self.measured * g), jnp.sum(g * g))
-
-    def _scale(self, mg, gg):
-        # from the products measured . g and g . g (any shape, elementwise)
+    def projected_scale(self, mg, gg):
+        """The S minimising the squared error of a shape g (closed form), kept within its
+        bounds, from the products ``mg`` = measured . g and ``gg`` = g . g (any shape,
+        elementwise)."""
         if not self.fit_s:
             return jnp.broadcast_to(self.s_reference, jnp.shape(mg))
         s = mg / jnp.maximum(gg, 1e-300)
@@ -229,7 +227,7 @@ class _Problem(eqx.Module):
 
         mg = per_shift(parity, self.measured)
         gg = per_shift(parity**2, jnp.ones(self.n_frames))
-        s = self._scale(mg, gg)
+        s = self.projected_scale(mg, gg)
         mm = jnp.sum(self.measured**2)
         costs = jnp.maximum(mm - 2.0 * s * mg + s * s * gg, 0.0) / mm
         i = jnp.argmin(costs)
