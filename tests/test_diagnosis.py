@@ -225,15 +225,6 @@ def _hidden_case(case):
     return rec, result, vfjax.diagnose(result, rec), truth
 
 
-# Known gap (issue 5, open): the modulation is found (ranked first, needed, most of the error
-# removed), but its depth does not come back. Over 100 ms (one modulation period) and with
-# closure jitter, depth, frequency and phase trade off: a long search (96 particles x 150
-# iterations) finds a = 0.12, f_m = 7.8 Hz fitting better than the truth itself (NMSE 0.014 %
-# against 0.050 %); the diagnosis's quick refit lands at a = 0.31. Only the recovery is an
-# expected failure; the detection is asserted.
-_KNOWN_GAPS = {"PressureModulation": "modulation depth not identifiable from one period"}
-
-
 def _marks(case):
     return [] if case in DEFAULT else [pytest.mark.slow]
 
@@ -254,8 +245,6 @@ def test_hidden_effect_is_found(case):
             value = float(vfjax.preset(CASES[case][0]).params()[name])
         found = refit.result.params
         got = _RECOVERED[name](found) if name in _RECOVERED else found[name]
-        if case in _KNOWN_GAPS and got != pytest.approx(value, rel=0.2):
-            pytest.xfail(f"{_KNOWN_GAPS[case]}: {name} = {got:.4g}, truth {value:.4g}")
         assert got == pytest.approx(value, rel=0.2), (name, found)
 
 

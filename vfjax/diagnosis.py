@@ -27,7 +27,9 @@ off, or a user's own term), two questions:
    giving the error each effect would reach. All candidates' starts (and the control's) run
    as one `vfjax.fit_many` batch of the model extended by every candidate, each start with
    the other candidates held at their off-values (`refit_each`): one compiled program
-   serves the whole diagnosis.
+   serves all the quick refits. The leading candidate and the control are then refitted
+   once more with a larger swarm (``confirm``), so that the error and parameters reported
+   for the effect to add are a thorough search's, not a quick one's.
 
 An effect is *needed* when the evidence is significant at ``alpha`` (Bonferroni-corrected
 over the candidates; the evidence is twice the smaller p-value of the score test and of an F
@@ -494,11 +496,19 @@ def _as_candidates(model, candidates):
 
 
 # ----------------------------------------------------------------------------------- refits
-def _starts(cand: Candidate, model, recording, score: EffectScore, n: int) -> list[dict]:
+def _starts(
+    cand: Candidate, model, recording, score: EffectScore, n: int, anchor: dict | None = None
+) -> list[dict]:
     """Starting values of the effect's parameters for the refit: just off the off-value (the
     current fit), then the one-step estimates (at the next-best grid settings, or scaled)
     and, for a candidate with a grid, a lattice over the grid and the phases; all clipped
-    into the parameters' ranges."""
+    into the parameters' ranges.
+
+    ``anchor`` (values of fitted parameters, e.g. `_anchor`'s) is a second base for the
+    lattice: every other lattice point starts from it instead of the current fit. A fit made
+    without the effect may have bent the fitted parameters far from where the effect needs
+    them (a closure hold stretched to mimic a pressure modulation's missing closures), and
+    from there the effect's basin is out of a small swarm's reach."""
 
     def _range(name):
         return search_range(model, name) or (-np.inf, np.inf, 0.1)
@@ -518,6 +528,8 @@ def _starts(cand: Candidate, model, recording, score: EffectScore, n: int) -> li
             for g in (cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, 4))
             for a in ((0.0, 2.1, -2.1) if phases else (0.0,))
         ]  # fmt: skip
+        if anchor:
+            lattice = [{**p, **anchor} if i % 2 else p for i, p in enumerate(lattice)]
         ests += lattice
         n += len(ests) - 1
     proposals = [near_off(ests[0]), ests[0]]
@@ -570,7 +582,8 @@ def refit_with(
     and the fitted ones within a factor ``box`` of their current values, and of their
     ``anchor`` values if given (e.g. the fit's starting model: an effect that changes the
     dynamics, such as the flow separation, can move K and C_f far from a fit made without
-    it); then LM. `refit_each` runs several candidates' refits as one batch.
+    it) and of the starts' values; then LM. `refit_each` runs several candidates' refits as
+    one batch.
     """
     return refit_each(result, recording, [(candidate, starts)], iterations=iterations,
                       swarm_size=swarm_size, lm_steps=lm_steps, box=box,
@@ -615,11 +628,11 @@ def refit_each(
             holds.append(tuple(n for n in union if n not in own[j]))
             owner.append(j)
     anchor = {n: v for n, v in (anchor or {}).items() if n in result.params and v > 0}
-    bounds = {}
+    bounds = {}  # a factor box around the current values, the anchor's and every start's
     for n, v in result.params.items():
         if v > 0 and search_range(wide, n) is None:
-            a = anchor.get(n, v)
-            bounds[n] = (min(v, a) / box, max(v, a) * box)
+            given = [v, anchor.get(n, v)] + [s[n] for _, ss in jobs for s in ss if s.get(n, 0) > 0]
+            bounds[n] = (min(given) / box, max(given) * box)
     s = result.settings
     fits = fit_many(models, [recording] * len(models), params=union, iterations=iterations,
                     swarm_size=swarm_size, lm_steps=lm_steps, warmup=s["warmup"],
@@ -627,7 +640,7 @@ def refit_each(
     best = []
     for j, c in enumerate(cands):
         mine = [f for f, o in zip(fits, owner) if o == j]
-        fit = min(mine, key=lambda f: f.nmse if np.isfinite(f.nmse) else np.inf)
+        fit = min(mine, key=_error)
         # the other jobs' candidates sit at their off-values: drop them from the model
         dormant = [k for k in added if c is None or k is not type(c.term)]
         model = fit.model.without(*dormant) if dormant else fit.model
@@ -679,6 +692,7 @@ def diagnose(
     refit: bool = True,
     starts: int = 3,
     iterations: int = 30,
+    confirm: tuple[int, int] | None = (64, 100),
     variance: str = "hac",
     progress: bool = False,
 ) -> Diagnosis:
@@ -697,6 +711,10 @@ def diagnose(
         refit: run the quick refits (and the control refit without any effect).
         starts: starting points per refit (batched).
         iterations: PSO iterations of each refit's small swarms.
+        confirm: (particles, iterations) of a second, larger refit of the leading candidate
+            and of the control, from their quick refits and the anchor: a candidate with
+            several interacting parameters (a modulation's depth, frequency and phase) has
+            narrow basins that a quick refit may miss. None: quick refits only.
         variance: ``"hac"`` (default) or ``"iid"``, see `score_tests`.
         progress: print one line per refit.
     """
@@ -720,10 +738,13 @@ def diagnose(
         jobs = [(None, [{}] + anchored)]
         for cand, score in zip(cands, scores):
             model = result.model.with_term(cand.term)
-            begin = _starts(cand, model, recording, score, starts)
+            begin = _starts(cand, model, recording, score, starts, anchor)
             jobs.append((cand, begin + [{**begin[0], **a} for a in anchored]))
         control, *fitted_each = refit_each(result, recording, jobs, iterations=iterations,
                                            anchor=anchor)  # fmt: skip
+        if confirm is not None:
+            control, fitted_each = _confirm(result, recording, jobs, control, fitted_each,
+                                            confirm, anchor)  # fmt: skip
         reference = min(result.nmse, control.nmse)
         if progress:
             print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
@@ -744,7 +765,7 @@ def diagnose(
     # the noise floor, from the residual of the best model at hand (a misfit with sharp
     # features inflates the estimate); no floor can exceed that model's own error
     fits = [result] + ([control] if control else []) + [f.result for f in refits.values()]
-    best_fit = min(fits, key=lambda f: f.nmse if np.isfinite(f.nmse) else np.inf)
+    best_fit = min(fits, key=_error)
     noise = noise_level(recording.area, best_fit.fitted_gaw(recording))
     noise_nmse = min(recording.n_frames * noise**2 / sse_scale, best_fit.nmse)
 
@@ -763,6 +784,30 @@ def diagnose(
                      needed, alpha, level, min_fall, noise_multiple, noise_nmse,
                      "")  # fmt: skip
     return dataclasses.replace(diag, verdict=_verdict(diag))
+
+
+def _confirm(result, recording, jobs, control, fitted, confirm, anchor):
+    """Refit the leading candidate (the lowest quick-refit error) and the control again with
+    a larger swarm, from their quick refits and from the jobs' anchored starts; keep each
+    one's better fit. The control gets the same search as the candidate, so that the fall
+    it is measured against is not the product of a bigger search alone."""
+    swarm_size, iterations = confirm
+    top = min(range(len(fitted)), key=lambda i: _error(fitted[i]))
+    (_, control_starts), (cand, cand_starts) = jobs[0], jobs[1 + top]
+    deep = [
+        (None, [dict(control.params)] + control_starts[1:]),
+        (cand, [dict(fitted[top].params)] + cand_starts[-1:]),
+    ]
+    c, f = refit_each(result, recording, deep, iterations=iterations, swarm_size=swarm_size,
+                      anchor=anchor)  # fmt: skip
+    fitted = list(fitted)
+    fitted[top] = min(fitted[top], f, key=_error)
+    return min(control, c, key=_error), fitted
+
+
+def _error(fit: FitResult) -> float:
+    """A fit's NMSE for ranking (a non-finite one ranks last)."""
+    return fit.nmse if np.isfinite(fit.nmse) else np.inf
 
 
 def _evidence(score: EffectScore, refit: "EffectRefit | None") -> float:

@@ -33,13 +33,19 @@ from . import phases
 from ._hermite import hermite, hermite_root, hermite_slope
 from .model import VocalFoldModel
 
-#: Default number of RK4 steps per camera frame. Chosen by the accuracy study in
-#: `benchmarks/accuracy.py`: with located events RK4 converges at 4th order, and 4 steps a frame
-#: keep the NMSE against a 1024-steps-per-frame reference below 4e-6 on every tested set.
+#: Default number of RK4 steps per camera frame: the coarsest step whose GAW keeps NMSE < 1e-4
+#: against a 1024-steps-per-frame reference on every set of `benchmarks/accuracy.py` (worst
+#: 3.2e-6) *and* whose derivatives stay within 2 % of finite differences at N1-N4. With located
+#: events RK4 converges at 4th order; 3 steps a frame pass the first test (2.9e-5) but not the
+#: second (N1's d GAW / d K: 2.6 % off its own finite differences, 6.4 % off the exact one).
 DEFAULT_SUBSTEPS = 4
 #: Event budget per second of simulated time. A glottal cycle has up to 7 events, so the
 #: default budget covers f0 up to ~570 Hz; beyond it `Simulation.complete` turns False.
 EVENTS_PER_SECOND = 4000.0
+#: Scan iterations per loop trip. Two halve the loop's fixed cost per iteration (its ~50
+#: kernels are launched once for two iterations' work), which is what limits small batches:
+#: +10 % at batch 1, +5-8 % at 32-64, no change at 256 (`benchmarks/throughput.py`).
+_UNROLL = 2
 #: A state beyond these bounds is reported as diverged (cm, cm/s).
 _X_LIMIT = 1.0
 _V_LIMIT = 1.0e5
@@ -371,7 +377,7 @@ def simulate(
     origin = t_start + jnp.asarray(time_shift, dtype=float)
     body = _iteration(model, h, n_steps, x0, xc, origin)
     n_iter = n_steps + max_events
-    end, (ts, xs, vs, codes) = jax.lax.scan(body, start, None, length=n_iter)
+    end, (ts, xs, vs, codes) = jax.lax.scan(body, start, None, length=n_iter, unroll=_UNROLL)
 
     dense = DenseOutput(
         t=jnp.concatenate([start.t[None], ts]),
