@@ -794,9 +794,10 @@ def _confirm(result, recording, jobs, control, fitted, confirm, anchor):
     swarm_size, iterations = confirm
     top = min(range(len(fitted)), key=lambda i: _error(fitted[i]))
     (_, control_starts), (cand, cand_starts) = jobs[0], jobs[1 + top]
+    anchored = [s for s in cand_starts if anchor and all(s.get(k) == v for k, v in anchor.items())]
     deep = [
         (None, [dict(control.params)] + control_starts[1:]),
-        (cand, [dict(fitted[top].params)] + cand_starts[-1:]),
+        (cand, [dict(fitted[top].params)] + (anchored or cand_starts[-1:])),
     ]
     c, f = refit_each(result, recording, deep, iterations=iterations, swarm_size=swarm_size,
                       anchor=anchor)  # fmt: skip
