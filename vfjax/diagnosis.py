@@ -794,10 +794,13 @@ def _confirm(result, recording, jobs, control, fitted, confirm, anchor):
     swarm_size, iterations = confirm
     top = min(range(len(fitted)), key=lambda i: _error(fitted[i]))
     (_, control_starts), (cand, cand_starts) = jobs[0], jobs[1 + top]
-    anchored = [s for s in cand_starts if anchor and all(s.get(k) == v for k, v in anchor.items())]
+
+    def from_anchor(starts):
+        return [s for s in starts if anchor and all(s.get(k) == v for k, v in anchor.items())]
+
     deep = [
-        (None, [dict(control.params)] + control_starts[1:]),
-        (cand, [dict(fitted[top].params)] + (anchored or cand_starts[-1:])),
+        (None, [dict(control.params)] + from_anchor(control_starts)),
+        (cand, [dict(fitted[top].params)] + (from_anchor(cand_starts) or cand_starts[-1:])),
     ]
     c, f = refit_each(result, recording, deep, iterations=iterations, swarm_size=swarm_size,
                       anchor=anchor)  # fmt: skip
