@@ -14,6 +14,7 @@ from vfjax import (
     Subject,
     VocalFoldModel,
 )
+from vfjax.datasets import demo_recording
 
 FPS = 4000.0
 
@@ -62,6 +63,35 @@ def test_pressure_modulation_formula_and_xc():
     )
     with pytest.raises(ValueError, match="a_pm"):
         PressureModulation(a_pm=1.5)
+
+
+def test_time_shift_moves_only_the_frames():
+    """A modulation's clock starts at t_start whatever the time shift: the frames of a
+    shifted simulation are the unshifted simulation's later frames (the fit's swarm reads
+    every shift from one simulation; its LM simulates each shift; both must agree)."""
+    model = vfjax.preset("N2").with_effect(PressureModulation(a_pm=0.06, f_m=7.0, phi=0.5))
+    k = 9  # frames
+    kwargs = {"t_start": 0.03, "max_time_shift": 0.005}
+    plain = vfjax.simulate(model, FPS, 60, **kwargs).area
+    shifted = vfjax.simulate(model, FPS, 60, time_shift=k / FPS, **kwargs).area
+    np.testing.assert_allclose(shifted[:-k], plain[k:], rtol=0, atol=1e-9)
+    assert float(jnp.max(jnp.abs(shifted - plain))) > 1.0  # the shift did move the frames
+
+
+def test_a_modulation_needs_a_longer_warmup():
+    base = vfjax.preset("N2")
+    assert vfjax.default_warmup(base) == 0.02
+    assert vfjax.default_warmup(base.with_effect(PressureModulation())) == 0.1
+    rec = demo_recording("N2", effect=PressureModulation(a_pm=0.06, f_m=7.0, phi=0.5))
+    assert rec.metadata["hidden_effect"] == "PressureModulation"
+    # the demo data start after the model's warm-up: the true model, refitted for the time
+    # shift and S only, reaches the noise floor (2 px on a ~500 px GAW)
+    truth = base.with_effect(PressureModulation(a_pm=0.06, f_m=7.0, phi=0.5))
+    fit = vfjax.fit(truth, rec, params=("S", "a_pm"), iterations=2, swarm_size=4,
+                    bounds={"a_pm": (0.0599, 0.0601)}, progress=False)  # fmt: skip
+    assert fit.settings["warmup"] == 0.1
+    noise = rec.n_frames * 2.0**2 / float(np.sum(rec.area**2))
+    assert fit.nmse < 2.0 * noise
 
 
 def test_mucosal_delay_shows_the_narrower_margin():

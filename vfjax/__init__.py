@@ -23,7 +23,7 @@ from . import (  # noqa: E402
 )
 from .cost import nmse  # noqa: E402
 from .diagnosis import Candidate, Diagnosis, diagnose, score_tests  # noqa: E402
-from .fit import FitResult, fit, fit_many, initial_model  # noqa: E402
+from .fit import FitResult, default_warmup, fit, fit_many, initial_model  # noqa: E402
 from .integrator import DEFAULT_SUBSTEPS, DenseOutput, Simulation, simulate  # noqa: E402
 from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, paper_model, preset  # noqa: E402
@@ -93,6 +93,7 @@ __all__ = [
     "score_tests",
     "fit",
     "fit_many",
+    "default_warmup",
     "load_recording",
     "nmse",
     "paper_model",

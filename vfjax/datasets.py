@@ -3,6 +3,7 @@
 import numpy as np
 
 from .descriptors import fundamental_frequency
+from .fit import default_warmup
 from .integrator import simulate
 from .presets import preset
 from .recording import Recording
@@ -22,7 +23,8 @@ def demo_recording(
 ) -> Recording:
     """A GAW of the paper's subject ``name`` simulated by vfjax, as a camera would see it.
 
-    Sampled from 27.7 ms after the onset (an arbitrary point of the cycle), with Gaussian
+    Sampled from 27.7 ms after the onset (an arbitrary point of the cycle; 7.7 ms after the
+    model's `default_warmup` where that is longer, e.g. with a slow modulation), with Gaussian
     noise of ``noise_px`` pixels (seeded), rounded to whole pixels and clipped at zero.
 
     Arguments:
@@ -43,7 +45,7 @@ def demo_recording(
     if jitter > 0 and model.closure_duration is not None:
         f0 = fundamental_frequency(np.asarray(simulate(model, fps, 400, t_start=0.02).area), fps)
         model = model.with_term(ClosureJitter.random(jitter, 1.0 / f0, seed=seed + 1))
-    sim = simulate(model, fps, n_frames, t_start=0.0277)
+    sim = simulate(model, fps, n_frames, t_start=default_warmup(model) + 0.0077)
     rng = np.random.default_rng(seed)
     area = np.asarray(sim.area) + rng.normal(0.0, noise_px, n_frames)
     area = np.clip(np.round(area), 0.0, None)

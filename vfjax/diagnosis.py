@@ -600,6 +600,7 @@ def refit_each(
     lm_steps: int = 30,
     box: float = 1.6,
     anchor: dict | None = None,
+    warmup: float | None = None,
 ) -> list[FitResult]:
     """`refit_with` for several candidates at once: ``jobs`` is a list of ``(candidate or
     None, starts)``; returns the best refit of each job.
@@ -608,7 +609,7 @@ def refit_each(
     every start simulates the fitted model extended by all the jobs' candidates, those of
     other jobs held at their off-values (where they change nothing). Each returned fit's
     model carries its own candidate only. If the candidates' parameter names clash, each job
-    runs as its own batch.
+    runs as its own batch. ``warmup`` (s) defaults to the fit's.
     """
     cands = [None if c is None else c if isinstance(c, Candidate) else Candidate.of(c)
              for c, _ in jobs]  # fmt: skip
@@ -617,8 +618,8 @@ def refit_each(
     wide = _extended(result.model, [c for c in cands if c is not None])
     if wide is None:
         return [refit_each(result, recording, [job], iterations=iterations,
-                           swarm_size=swarm_size, lm_steps=lm_steps, box=box,
-                           anchor=anchor)[0] for job in jobs]  # fmt: skip
+                           swarm_size=swarm_size, lm_steps=lm_steps, box=box, anchor=anchor,
+                           warmup=warmup)[0] for job in jobs]  # fmt: skip
     added = [type(t) for t in wide.terms if not result.model.has(type(t))]
     union = tuple(dict.fromkeys(n for o in own for n in o))
     models, holds, owner = [], [], []
@@ -635,7 +636,8 @@ def refit_each(
             bounds[n] = (min(given) / box, max(given) * box)
     s = result.settings
     fits = fit_many(models, [recording] * len(models), params=union, iterations=iterations,
-                    swarm_size=swarm_size, lm_steps=lm_steps, warmup=s["warmup"],
+                    swarm_size=swarm_size, lm_steps=lm_steps,
+                    warmup=s["warmup"] if warmup is None else warmup,
                     substeps=s["substeps"], bounds=bounds, hold=holds)  # fmt: skip
     best = []
     for j, c in enumerate(cands):
@@ -744,7 +746,7 @@ def diagnose(
                                            anchor=anchor)  # fmt: skip
         if confirm is not None:
             control, fitted_each = _confirm(result, recording, jobs, control, fitted_each,
-                                            confirm, anchor)  # fmt: skip
+                                            confirm, anchor, iterations)  # fmt: skip
         reference = min(result.nmse, control.nmse)
         if progress:
             print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
@@ -786,27 +788,37 @@ def diagnose(
     return dataclasses.replace(diag, verdict=_verdict(diag))
 
 
-def _confirm(result, recording, jobs, control, fitted, confirm, anchor):
+def _confirm(result, recording, jobs, control, fitted, confirm, anchor, iterations):
     """Refit the leading candidate (the lowest quick-refit error) and the control again with
     a larger swarm, from their quick refits and from the jobs' anchored starts; keep each
     one's better fit. The control gets the same search as the candidate, so that the fall
-    it is measured against is not the product of a bigger search alone."""
-    swarm_size, iterations = confirm
+    it is measured against is not the product of a bigger search alone.
+
+    A candidate that needs a longer warm-up than the fit's (its term's ``min_warmup``: a slow
+    modulation, whose history is in the state at the first frame) is first refitted again at
+    that warm-up from all its quick starts, and so is the control; the larger refits then
+    start from those."""
+    swarm_size, deep_iterations = confirm
     top = min(range(len(fitted)), key=lambda i: _error(fitted[i]))
     (_, control_starts), (cand, cand_starts) = jobs[0], jobs[1 + top]
+    warmup = max(result.settings["warmup"], float(type(cand.term).min_warmup))
+    quick = (control, fitted[top])
+    if warmup > result.settings["warmup"]:
+        quick = refit_each(result, recording, [jobs[0], jobs[1 + top]], iterations=iterations,
+                           anchor=anchor, warmup=warmup)  # fmt: skip
 
     def from_anchor(starts):
         return [s for s in starts if anchor and all(s.get(k) == v for k, v in anchor.items())]
 
     deep = [
-        (None, [dict(control.params)] + from_anchor(control_starts)),
-        (cand, [dict(fitted[top].params)] + (from_anchor(cand_starts) or cand_starts[-1:])),
+        (None, [dict(quick[0].params)] + from_anchor(control_starts)),
+        (cand, [dict(quick[1].params)] + (from_anchor(cand_starts) or cand_starts[-1:])),
     ]
-    c, f = refit_each(result, recording, deep, iterations=iterations, swarm_size=swarm_size,
-                      anchor=anchor)  # fmt: skip
+    c, f = refit_each(result, recording, deep, iterations=deep_iterations,
+                      swarm_size=swarm_size, anchor=anchor, warmup=warmup)  # fmt: skip
     fitted = list(fitted)
-    fitted[top] = min(fitted[top], f, key=_error)
-    return min(control, c, key=_error), fitted
+    fitted[top] = min(fitted[top], *quick[1:], f, key=_error)
+    return min(control, quick[0], c, key=_error), fitted
 
 
 def _error(fit: FitResult) -> float:
@@ -875,12 +887,15 @@ def extend(result: FitResult, recording: Recording, effect, params=None, **fit_k
         effect: the term to add, with its starting values (e.g. ``GlottalGap()``, or a
             diagnosis's ``refits[name].result.model.term(GlottalGap)``).
         params: the effect's parameters to fit (default: all of them).
-        fit_kwargs: passed to `vfjax.fit` (default: 40 PSO iterations, no progress bar).
+        fit_kwargs: passed to `vfjax.fit` (default: 40 PSO iterations, no progress bar, the
+            current fit's substeps, and its warm-up or the effect's ``min_warmup`` if longer).
     Returns the new `FitResult`; its model holds the effect.
     """
-    from .fit import fit
+    from .fit import default_warmup, fit
 
     model = result.model.with_effect(effect)
     names = tuple(result.params) + tuple(params or type(effect).parameters)
-    kwargs = {"iterations": 40, "progress": False, **fit_kwargs}
+    s = result.settings
+    kwargs = {"iterations": 40, "progress": False, "substeps": s["substeps"],
+              "warmup": max(s["warmup"], default_warmup(model)), **fit_kwargs}  # fmt: skip
     return fit(model, recording, params=names, **kwargs)

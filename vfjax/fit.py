@@ -2,7 +2,8 @@
 
 Protocol (the paper gives none). A recording starts at an arbitrary point of the glottal
 cycle, while the model starts from rest at contact. vfjax simulates ``warmup`` seconds to reach
-the limit cycle and then samples the recording's frames from ``warmup + time_shift``, where
+the limit cycle (20 ms, or longer where a term of the model needs it: `default_warmup`) and
+then samples the recording's frames from ``warmup + time_shift``, where
 the time shift is a fitted, differentiable parameter in [0, ~1.25 T0] (T0: the recording's
 cycle length, from its f0). Parameters are searched in O(1) coordinates: log(p / p_ref) for
 each fitted physical parameter, and time_shift / T0 for the shift.
@@ -56,6 +57,15 @@ LINEAR = {
     "t_c": (0.0, 0.01, 1e-3),
     "C_min": (0.0, 500.0, 50.0),
 }
+
+#: Simulated time before the first frame (s) of a fit whose terms need no more.
+WARMUP = 0.02
+
+
+def default_warmup(model: VocalFoldModel) -> float:
+    """The warm-up (s) a fit of ``model`` uses by default: `WARMUP`, or the longest that one
+    of its terms needs (``min_warmup``, e.g. 0.1 s for a pressure modulation)."""
+    return max([WARMUP] + [float(type(t).min_warmup) for t in model.terms])
 
 
 def search_range(model: VocalFoldModel, name: str) -> tuple[float, float, float] | None:
@@ -550,7 +560,7 @@ def fit(
     lm_steps: int = 40,
     rtol: float = 1e-6,
     atol: float = 1e-9,
-    warmup: float = 0.02,
+    warmup: float | None = None,
     substeps: int = DEFAULT_SUBSTEPS,
     settings: SwarmSettings = _DEFAULT_SWARM,
     progress: bool | None = None,
@@ -573,7 +583,7 @@ def fit(
         polish: run the Levenberg-Marquardt polish.
         lm_steps: maximum LM steps.
         rtol, atol: LM tolerances (on the O(1) coordinates).
-        warmup: simulated time before sampling starts (s).
+        warmup: simulated time before sampling starts (s); default: `default_warmup`.
         substeps: RK4 steps per frame.
         settings: PSO constants and boundary handling.
         progress: show a progress bar (default: on a terminal, for more than 20 iterations).
@@ -582,6 +592,7 @@ def fit(
     """
     t_all = time.perf_counter()
     key = jax.random.key(0) if key is None else key
+    warmup = default_warmup(model) if warmup is None else warmup
     problem, lower, upper, _ = _prepare(model, recording, params, warmup, substeps, bounds)
     start = jnp.zeros(lower.shape[0])
     show = progress if progress is not None else (iterations > 20 and sys.stderr.isatty())
@@ -728,7 +739,7 @@ def fit_many(
     lm_steps: int = 40,
     rtol: float = 1e-6,
     atol: float = 1e-9,
-    warmup: float = 0.02,
+    warmup: float | None = None,
     substeps: int = DEFAULT_SUBSTEPS,
     settings: SwarmSettings = _DEFAULT_SWARM,
     hold: Sequence[Sequence[str]] | None = None,
@@ -769,6 +780,7 @@ def fit_many(
     hold = [()] * len(models) if hold is None else [tuple(h) for h in hold]
     if len(hold) != len(models):
         raise ValueError(f"got {len(hold)} hold lists for {len(recordings)} recordings")
+    warmup = max(default_warmup(m) for m in models) if warmup is None else warmup
     prepared = [
         _prepare(m, r, params, warmup, substeps, bounds, h)
         for m, r, h in zip(models, recordings, hold)

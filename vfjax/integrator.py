@@ -226,7 +226,8 @@ def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one):
 def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
     """One scan iteration: a full grid step, a step up to an event, or a stretch of hold.
 
-    The model's time-dependent terms see time measured from ``origin`` (the first frame)."""
+    The model's time-dependent terms see time measured from ``origin`` (`simulate`'s
+    ``t_start``)."""
     has_hold = model.closure_duration is not None
 
     def body(c: _Carry, _):
@@ -331,8 +332,10 @@ def simulate(
 
     The folds start at ``initial_displacement`` (default: at rest at contact, x = x_0) at time
     0; frames are taken at ``t_start + time_shift + k / fps`` for k = 0 .. n_frames - 1.
-    Time-dependent terms (`PressureModulation`, `ClosureJitter`) see time measured from the
-    first frame, so their phase is the recording's and does not move with ``time_shift``.
+    Time-dependent terms (`PressureModulation`, `ClosureJitter`) see time measured from
+    ``t_start`` (the first frame when ``time_shift`` is 0): ``time_shift`` moves the frames
+    within one simulation, and moves nothing else (so a fit can read every shift from one
+    simulation's dense output).
     Jit-compiled; differentiable (forward and reverse) in every array leaf of ``model`` and in
     ``time_shift``; vmappable over models with batched leaves.
 
@@ -374,8 +377,7 @@ def simulate(
         flags=_pack(x_init > x0, x_init <= xc, v_init < 0, False),
         advances=jnp.zeros((), jnp.int32),
     )
-    origin = t_start + jnp.asarray(time_shift, dtype=float)
-    body = _iteration(model, h, n_steps, x0, xc, origin)
+    body = _iteration(model, h, n_steps, x0, xc, t_start)
     n_iter = n_steps + max_events
     end, (ts, xs, vs, codes) = jax.lax.scan(body, start, None, length=n_iter, unroll=_UNROLL)
 
@@ -385,7 +387,7 @@ def simulate(
         v=jnp.concatenate([start.v[None], vs]),
         phase=jnp.concatenate([codes, codes[-1:]]),
     )
-    times = origin + jnp.arange(n_frames) / fps
+    times = t_start + jnp.asarray(time_shift, dtype=float) + jnp.arange(n_frames) / fps
     x = dense.displacement(times)
     valid = times <= end.t + 1e-12
     area = model.observe(times, x, dense.displacement)

@@ -42,6 +42,11 @@ class AbstractTerm(eqx.Module):
     #: Search range ``(low, high, scale)`` of parameters fitted in linear coordinates (those
     #: starting at an off-value of 0), in the parameter's unit; see `vfjax.fit.search_range`.
     ranges: ClassVar[dict[str, tuple[float, float, float]]] = {}
+    #: The least simulated time before the first frame (s) that a fit of a model with this
+    #: term needs (`vfjax.fit`'s default warm-up is the largest of its terms'): a term whose
+    #: effect has a memory longer than the default 20 ms (a slow modulation) must start early
+    #: enough for its history to be in the state at the first frame.
+    min_warmup: ClassVar[float] = 0.0
 
     @classmethod
     def guess(cls, recording) -> dict[str, float]:
@@ -100,8 +105,8 @@ class AbstractPressure(AbstractTerm):
     """A transformation of the subglottal pressure over time."""
 
     def pressure(self, t: ArrayLike, mean_pressure: ArrayLike) -> Array:
-        """Pressure (dyne/cm²) at time ``t`` (s, from the recording's first frame; negative
-        during the warm-up) given the steady pressure ``mean_pressure``."""
+        """Pressure (dyne/cm²) at time ``t`` (s, from the start of sampling, `vfjax.simulate`'s
+        ``t_start``; negative during the warm-up) given the steady pressure ``mean_pressure``."""
         raise NotImplementedError
 
 

@@ -18,8 +18,9 @@ from .base import AbstractHoldVariability
 class ClosureJitter(AbstractHoldVariability):
     """Closure durations that vary from cycle to cycle.
 
-    A hold starting at time t (s from the first frame) lasts t_c * factors[k],
-    k = floor(t / slot), clipped to the table (holds of the warm-up use factors[0]).
+    A hold starting at time t (s from the start of sampling, `vfjax.simulate`'s ``t_start``)
+    lasts t_c * factors[k], k = floor(t / slot), clipped to the table (holds of the warm-up
+    use factors[0]).
     Build one with `ClosureJitter.random`.
 
     Arguments:
