@@ -84,6 +84,7 @@ def investigate(
     alpha: float = 0.01,
     min_fall: float = 0.2,
     iterations: int = 60,
+    confirm: tuple[int, int] | None = (64, 100),
     progress: bool = False,
 ) -> Investigation:
     """Fit ``model`` (default `vfjax.initial_model`), diagnose, add the best effect, refit,
@@ -96,6 +97,8 @@ def investigate(
         rounds: most effects to add.
         candidates, alpha, min_fall: passed to `vfjax.diagnose`.
         iterations: PSO iterations of the first fit and of each extension.
+        confirm: the diagnoses' confirming refit, passed to `vfjax.diagnose` (None: quick
+            refits only, a few minutes less per round).
         progress: print what happens.
     """
     model = initial_model(recording) if model is None else model
@@ -110,7 +113,7 @@ def investigate(
             else [c for c in candidates if not current.model.has(_kind(c))]
         )
         d = diagnose(current, recording, remaining, alpha=alpha, min_fall=min_fall,
-                     progress=progress)  # fmt: skip
+                     confirm=confirm, progress=progress)  # fmt: skip
         if progress:
             print(d.verdict)
         if d.best is None or len(done) >= rounds:
