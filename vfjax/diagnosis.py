@@ -817,7 +817,7 @@ def _confirm(result, recording, jobs, control, fitted, confirm, anchor, iteratio
     c, f = refit_each(result, recording, deep, iterations=deep_iterations,
                       swarm_size=swarm_size, anchor=anchor, warmup=warmup)  # fmt: skip
     fitted = list(fitted)
-    fitted[top] = min(fitted[top], *quick[1:], f, key=_error)
+    fitted[top] = min(fitted[top], quick[1], f, key=_error)
     return min(control, quick[0], c, key=_error), fitted
 
 
