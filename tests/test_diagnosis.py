@@ -5,6 +5,7 @@ Heavy cases (a fit + a diagnosis with six refits each) share one xdist group so 
 worker compiles each candidate's refit once; the rest of the hidden-effect matrix is marked
 slow (`python -m pytest -m slow`)."""
 
+import dataclasses
 import json
 import math
 from typing import ClassVar
@@ -269,3 +270,16 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
     assert extended.model.has(GlottalGap)
     assert extended.nmse < 0.5 * result.nmse
     assert extended.params["a_gap"] == pytest.approx(0.008, rel=0.2)
+
+    # an investigation that added nothing ends with its last diagnosis's control refit where
+    # that fit the same model better (and says so in the report), else with the fit itself
+    def study_with(control):
+        last = vfjax.workflow.Round(result, dataclasses.replace(d, control=control), None, None)
+        return vfjax.Investigation(rec.name, [last])
+
+    better = dataclasses.replace(result, nmse=0.5 * result.nmse)
+    assert study_with(better).final is better
+    assert study_with(dataclasses.replace(result, nmse=2.0 * result.nmse)).final is result
+    assert study_with(None).final is result
+    text = vfjax.report.write_report(study_with(better), rec, tmp_path / "refitted").read_text()
+    assert f"| {better.nmse:.3%} | |" in text

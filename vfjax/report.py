@@ -63,9 +63,10 @@ def plot_rounds(study: Investigation, recording: Recording):
     ax.plot(t, recording.area, color="#2a9d8f", lw=1.4, label="measured")
     ax.plot(t, study.first.fitted_gaw(recording), color="#adb5bd", lw=1.1,
             label=f"paper model (NMSE {study.first.nmse:.2%})")  # fmt: skip
-    if study.added:
+    if study.final is not study.first:
+        what = "+ " + " + ".join(study.added) if study.added else "paper model, refitted"
         ax.plot(t, study.final.fitted_gaw(recording), color="#c1121f", lw=1.1,
-                label=f"+ {' + '.join(study.added)} (NMSE {study.final.nmse:.2%})")  # fmt: skip
+                label=f"{what} (NMSE {study.final.nmse:.2%})")  # fmt: skip
     ax.set_xlabel("time (ms)")
     ax.set_ylabel(f"area ({recording.unit})")
     ax.legend(frameon=False, fontsize=7, ncol=3, loc="upper right")
@@ -73,6 +74,9 @@ def plot_rounds(study: Investigation, recording: Recording):
     ax = fig.add_subplot(grid[1, 0])
     labels = ["paper"] + [f"+ {n}" for n in study.added]
     errors = [study.first.nmse] + [r.extended.nmse for r in study.rounds if r.extended]
+    if study.rounds[-1].extended is None and study.final is not study.rounds[-1].fit:
+        labels.append("refitted")  # the last diagnosis's control found a better fit
+        errors.append(study.final.nmse)
     ax.bar(range(len(errors)), errors, color=["#adb5bd"] + ["#2a9d8f"] * (len(errors) - 1))
     ax.set_xticks(range(len(errors)), labels, fontsize=7, rotation=15)
     ax.set_yscale("log")
@@ -217,7 +221,7 @@ def write_report(
     ]
     for i, r in enumerate(study.rounds, 1):
         lines.append(f"| {i} | {_model_words(r.fit)} | {r.fit.nmse:.3%} | {r.added or '-'} |")
-    if study.added:
+    if study.final is not study.rounds[-1].fit:
         lines.append(f"| final | {_model_words(study.final)} | {study.final.nmse:.3%} | |")
     lines += ["", f"**Conclusion.** {study.rounds[-1].diagnosis.verdict}", ""]
     fig = plot_rounds(study, recording)

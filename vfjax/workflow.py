@@ -46,9 +46,14 @@ class Investigation:
 
     @property
     def final(self) -> FitResult:
-        """The last fit: the extended model after the last round that added an effect."""
+        """The last fit: the extended model after the last round that added an effect; when
+        the last round added none and its diagnosis's control (the same model refitted with
+        the diagnosis's wider search) reached a lower error, that control refit."""
         last = self.rounds[-1]
-        return last.extended if last.extended is not None else last.fit
+        if last.extended is not None:
+            return last.extended
+        control = last.diagnosis.control
+        return control if control is not None and control.nmse < last.fit.nmse else last.fit
 
     @property
     def added(self) -> list[str]:
