@@ -65,6 +65,8 @@ from .terms.base import AbstractTerm
 from .terms.effects import CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
 from .terms.paper import ClosureHold, FlowSeparation
 
+#: The confirming refit's swarm by default: (particles, PSO iterations); see `diagnose`.
+CONFIRM = (64, 100)
 #: The candidates tried by default, in this order (those already active in the model are
 #: skipped; FlowSeparation and ClosureHold only when absent or switched off).
 DEFAULT_CANDIDATES = (GlottalGap, CubicStiffness, PressureModulation, MucosalDelay,
@@ -694,7 +696,7 @@ def diagnose(
     refit: bool = True,
     starts: int = 3,
     iterations: int = 30,
-    confirm: tuple[int, int] | None = (64, 100),
+    confirm: tuple[int, int] | None = CONFIRM,
     variance: str = "hac",
     progress: bool = False,
 ) -> Diagnosis:

@@ -74,8 +74,8 @@ def plot_rounds(study: Investigation, recording: Recording):
     ax = fig.add_subplot(grid[1, 0])
     labels = ["paper"] + [f"+ {n}" for n in study.added]
     errors = [study.first.nmse] + [r.extended.nmse for r in study.rounds if r.extended]
-    if study.rounds[-1].extended is None and study.final is not study.rounds[-1].fit:
-        labels.append("refitted")  # the last diagnosis's control found a better fit
+    if study.final is study.rounds[-1].diagnosis.control:  # it fitted the model better
+        labels.append("refitted")
         errors.append(study.final.nmse)
     ax.bar(range(len(errors)), errors, color=["#adb5bd"] + ["#2a9d8f"] * (len(errors) - 1))
     ax.set_xticks(range(len(errors)), labels, fontsize=7, rotation=15)

@@ -9,7 +9,7 @@ vfjax.report.write_report(study, recording, "out/")
 import dataclasses
 from collections.abc import Sequence
 
-from .diagnosis import Diagnosis, diagnose
+from .diagnosis import CONFIRM, Diagnosis, diagnose
 from .fit import FitResult, fit, initial_model
 from .recording import Recording
 
@@ -89,7 +89,7 @@ def investigate(
     alpha: float = 0.01,
     min_fall: float = 0.2,
     iterations: int = 60,
-    confirm: tuple[int, int] | None = (64, 100),
+    confirm: tuple[int, int] | None = CONFIRM,
     progress: bool = False,
 ) -> Investigation:
     """Fit ``model`` (default `vfjax.initial_model`), diagnose, add the best effect, refit,
