@@ -135,11 +135,21 @@ def test_a_terms_own_search_range_is_used():
     assert search_range(vfjax.preset("N3"), "b") is None
 
 
+def test_confirming_swarm_grows_with_the_candidates_parameters():
+    from vfjax.diagnosis import confirm_swarm
+
+    assert confirm_swarm((64, 100), 1) == (64, 100)
+    assert confirm_swarm((64, 100), 3) == (256, 150)  # a modulation: depth, frequency, phase
+    assert confirm_swarm((64, 100), 3, scale=False) == (64, 100)
+
+
 def test_bad_arguments_are_refused(shared_dir):
     rec = demo_recording("N3", noise_px=0.0)
     result = vfjax.fit(vfjax.preset("N3"), rec, params=("S",), iterations=0, progress=False)
     with pytest.raises(ValueError, match="alpha"):
         vfjax.diagnose(result, rec, alpha=0.0)
+    with pytest.raises(ValueError, match="confirm"):
+        vfjax.diagnose(result, rec, confirm=(64, 0))
     with pytest.raises(ValueError, match="already active"):
         vfjax.diagnose(result, rec, [ClosureHold])
     with pytest.raises(ValueError, match="variance"):
@@ -183,9 +193,16 @@ def test_shared_gap_case(shared_dir):
 @pytest.mark.slow
 @pytest.mark.xdist_group("diagnosis")
 def test_shared_tremor_case(shared_dir):
-    _, _, _, d = _shared(shared_dir, "syn_tremor")
+    _, answer, _, d = _shared(shared_dir, "syn_tremor")
     assert d.ranking[0] == "PressureModulation" and d.best == "PressureModulation", d.verdict
-    assert d.refits["PressureModulation"].nmse <= 0.5 * d.nmse_before
+    refit = d.refits["PressureModulation"]
+    assert refit.nmse <= 0.5 * d.nmse_before
+    depth, frequency, _ = answer["effect_values"]["PressureModulation"]
+    assert refit.values["a_pm"] == pytest.approx(depth, rel=0.2)
+    # 50 ms hold a third of the 7 Hz modulation's period: refits at f_m fixed anywhere in
+    # 6-8.3 Hz reach the same NMSE within the noise (5 and 9.5 Hz do not), so the frequency
+    # is held to a looser 30 %
+    assert refit.values["f_m"] == pytest.approx(frequency, rel=0.3)
 
 
 # -------------------------------------------------------------- vfjax's own hidden effects

@@ -29,7 +29,10 @@ off, or a user's own term), two questions:
    the other candidates held at their off-values (`refit_each`): one compiled program
    serves all the quick refits. The leading candidate and the control are then refitted
    once more with a larger swarm (``confirm``), so that the error and parameters reported
-   for the effect to add are a thorough search's, not a quick one's.
+   for the effect to add are a thorough search's, not a quick one's. A leader whose quick
+   refit already removes ``min_fall`` of the error gets a swarm sized to its dimension:
+   twice the particles and a quarter more iterations per parameter beyond its first (a
+   modulation's depth, frequency and phase: 4x the particles, 1.5x the iterations).
 
 An effect is *needed* when the evidence is significant at ``alpha`` (Bonferroni-corrected
 over the candidates; the evidence is twice the smaller p-value of the score test and of an F
@@ -65,7 +68,8 @@ from .terms.base import AbstractTerm
 from .terms.effects import CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
 from .terms.paper import ClosureHold, FlowSeparation
 
-#: The confirming refit's swarm by default: (particles, PSO iterations); see `diagnose`.
+#: The confirming refit's swarm by default: (particles, PSO iterations) for a candidate of
+#: one parameter; see `diagnose` and `confirm_swarm`.
 CONFIRM = (64, 100)
 #: The candidates tried by default, in this order (those already active in the model are
 #: skipped; FlowSeparation and ClosureHold only when absent or switched off).
@@ -718,7 +722,9 @@ def diagnose(
         confirm: (particles, iterations) of a second, larger refit of the leading candidate
             and of the control, from their quick refits and the anchor: a candidate with
             several interacting parameters (a modulation's depth, frequency and phase) has
-            narrow basins that a quick refit may miss. None: quick refits only.
+            narrow basins that a quick refit may miss. For a leader whose quick refit removes
+            ``min_fall`` of the error, the swarm grows with its parameters
+            (`confirm_swarm`). None: quick refits only.
         variance: ``"hac"`` (default) or ``"iid"``, see `score_tests`.
         progress: print one line per refit.
     """
@@ -726,6 +732,11 @@ def diagnose(
         raise ValueError(f"alpha must lie in (0, 1), got {alpha}")
     if not 0 <= min_fall < 1:
         raise ValueError(f"min_fall must lie in [0, 1), got {min_fall}")
+    if confirm is not None and (
+        len(confirm) != 2 or any(not isinstance(c, int) or c < 1 for c in confirm)
+    ):
+        raise ValueError(f"confirm must be (particles, iterations), positive integers, or None; "
+                         f"got {confirm!r}")  # fmt: skip
     cands = _as_candidates(result.model, candidates)
     if not cands:
         raise ValueError("no candidate effect to test: every one is already in the model")
@@ -748,7 +759,7 @@ def diagnose(
                                            anchor=anchor)  # fmt: skip
         if confirm is not None:
             control, fitted_each = _confirm(result, recording, jobs, control, fitted_each,
-                                            confirm, anchor, iterations)  # fmt: skip
+                                            confirm, anchor, iterations, min_fall)  # fmt: skip
         reference = min(result.nmse, control.nmse)
         if progress:
             print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
@@ -790,19 +801,34 @@ def diagnose(
     return dataclasses.replace(diag, verdict=_verdict(diag))
 
 
-def _confirm(result, recording, jobs, control, fitted, confirm, anchor, iterations):
+def confirm_swarm(confirm: tuple[int, int], n_params: int, scale: bool = True) -> tuple[int, int]:
+    """The confirming refit's (particles, iterations) for a candidate of ``n_params``
+    parameters: ``confirm`` for one, and per further parameter twice the particles and a
+    quarter more iterations (a swarm must cover a larger box, and the basins of interacting
+    parameters, such as a modulation's frequency and phase, are narrow). ``scale=False``:
+    ``confirm`` itself."""
+    particles, iterations = confirm
+    extra = max(n_params - 1, 0) if scale else 0
+    return particles * 2**extra, int(round(iterations * (1 + extra / 4)))
+
+
+def _confirm(result, recording, jobs, control, fitted, confirm, anchor, iterations, min_fall):
     """Refit the leading candidate (the lowest quick-refit error) and the control again with
     a larger swarm, from their quick refits and from the jobs' anchored starts; keep each
     one's better fit. The control gets the same search as the candidate, so that the fall
-    it is measured against is not the product of a bigger search alone.
+    it is measured against is not the product of a bigger search alone. If the leader's
+    quick refit removes ``min_fall`` of the error (an effect likely to be reported, whose
+    parameters then matter), the swarm grows with its parameter count (`confirm_swarm`).
 
     A candidate that needs a longer warm-up than the fit's (its term's ``min_warmup``: a slow
     modulation, whose history is in the state at the first frame) is first refitted again at
     that warm-up from all its quick starts, and so is the control; the larger refits then
     start from those."""
-    swarm_size, deep_iterations = confirm
     top = min(range(len(fitted)), key=lambda i: _error(fitted[i]))
     (_, control_starts), (cand, cand_starts) = jobs[0], jobs[1 + top]
+    reference = min(_error(result), _error(control))
+    matters = _error(fitted[top]) <= (1.0 - min_fall) * reference
+    swarm_size, deep_iterations = confirm_swarm(confirm, len(cand.tested + cand.extra), matters)
     warmup = max(result.settings["warmup"], float(type(cand.term).min_warmup))
     quick = (control, fitted[top])
     if warmup > result.settings["warmup"]:
