@@ -100,9 +100,16 @@ def test_divergence_is_flagged_not_crashed():
 
 
 def test_event_budget_exhaustion_is_reported():
-    sim = vfjax.simulate(vfjax.preset("N1"), FPS, 201, max_events=3)
+    # without the hold every grid step and every switch takes an iteration: 3 do not suffice
+    m = vfjax.preset("N1").without(ClosureHold)
+    sim = vfjax.simulate(m, FPS, 201, max_events=3)
     assert not bool(sim.complete) and not bool(sim.diverged)
     assert np.isnan(np.asarray(sim.area)[-1])
+    # a budget of as many switches as the run makes is enough
+    n = int(vfjax.simulate(m, FPS, 201).n_events)
+    assert n > 30
+    enough = vfjax.simulate(m, FPS, 201, max_events=n)
+    assert bool(enough.complete) and np.isfinite(np.asarray(enough.area)[-1])
 
 
 def test_substeps_converge():

@@ -12,19 +12,25 @@ cubic Hermite interpolant, the iteration stops there (the state moves onto the s
 surface), the flag flips, and the next iteration continues from the event. The event time
 comes from a Newton step on live values, so it carries its derivative (implicit function
 theorem), and so does everything after it. The closure hold freezes the state for t_c from a
-located start, so its release time is differentiable too.
+located start, so one iteration takes it to its release, whose time is differentiable too.
 
 The result is a list of nodes (time, displacement, velocity) with smooth dynamics between
 consecutive nodes. Frames are read off this dense output by cubic Hermite interpolation at the
 camera times, so they too are differentiable in every parameter and in the sampling time.
-Under `jax.vmap` every member of a batch runs the same number of iterations (steps on the grid
-plus a budget for events); a member that finishes early idles.
+
+The iterations run in a loop that stops once every member of a batch has reached the last
+frame (a member that finishes early idles). Its length is bounded by the steps on the grid plus
+a budget for events; a recording that is held closed for half of each cycle needs about half
+of that. A while loop has no reverse mode, so derivatives (forward and reverse) are taken
+through a `lax.scan` of the bound's length that computes the same values.
 """
 
+import functools
 import math
 from typing import NamedTuple
 
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
@@ -40,12 +46,17 @@ from .model import VocalFoldModel
 #: second (N1's d GAW / d K: 2.6 % off its own finite differences, 6.4 % off the exact one).
 DEFAULT_SUBSTEPS = 4
 #: Event budget per second of simulated time. A glottal cycle has up to 7 events, so the
-#: default budget covers f0 up to ~570 Hz; beyond it `Simulation.complete` turns False.
+#: default budget covers f0 up to ~570 Hz; beyond it `Simulation.complete` may turn False
+#: (each closure hold spares the grid steps it spans, so a recording that closes can go beyond).
 EVENTS_PER_SECOND = 4000.0
 #: Scan iterations per loop trip. Two halve the loop's fixed cost per iteration (its ~50
 #: kernels are launched once for two iterations' work), which is what limits small batches:
 #: +10 % at batch 1, +5-8 % at 32-64, no change at 256 (`benchmarks/throughput.py`).
 _UNROLL = 2
+#: Iterations per trip of the early-stopping loop: a scan of 16, whose rows are written as one
+#: block (writing each iteration's row on its own was 10-20 % slower). The loop's length is
+#: rounded up to a multiple of it, so it overshoots the last needed iteration by at most 15.
+_CHUNK = 16
 #: A state beyond these bounds is reported as diverged (cm, cm/s).
 _X_LIMIT = 1.0
 _V_LIMIT = 1.0e5
@@ -146,10 +157,18 @@ class _Carry(NamedTuple):
     hold_left: Array
     step: Array  # index of the last grid point reached
     flags: Array  # regime flags, packed (`_pack`)
-    advances: Array  # iterations that advanced: grid steps plus events
+    events: Array  # regime switches so far (located events and hold releases)
 
     def flag(self, bit):
         return (self.flags & bit) != 0
+
+    def phase_code(self):
+        return _phase_code(
+            self.flag(_FLOW), self.flag(_INNER), self.flag(_CLOSING), self.flag(_HOLD)
+        )
+
+    def active(self, n_steps):
+        return (self.step < n_steps) & ~self.flag(_DIVERGED)
 
 
 def _phase_code(flow, inner, closing, hold):
@@ -229,12 +248,13 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
     The model's time-dependent terms see time measured from ``origin`` (`simulate`'s
     ``t_start``)."""
     has_hold = model.closure_duration is not None
+    t_end = float(n_steps) * h  # the last grid point, as `t_target` computes it
 
     def body(c: _Carry, _):
         c_flow, c_inner, c_closing = c.flag(_FLOW), c.flag(_INNER), c.flag(_CLOSING)
         c_hold, c_diverged = c.flag(_HOLD), c.flag(_DIVERGED)
         active = (c.step < n_steps) & ~c_diverged
-        one = jnp.where(c.advances >= 0, 1.0, 2.0)  # always 1: see `_computed_once`
+        one = jnp.where(c.events >= 0, 1.0, 2.0)  # always 1: see `_computed_once`
         t_target = (c.step + 1).astype(float) * h
         dt = t_target - c.t
 
@@ -263,19 +283,24 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
             flags=_pack(
                 flow & ~starts_hold, inner | starts_hold, closing & ~starts_hold, starts_hold
             ),
-            advances=c.advances,
+            events=c.events + event.astype(c.events.dtype),
         )
 
-        # Closure hold: the state rests until the hold runs out, then the fold is released.
-        release = c.hold_left <= dt
+        # Closure hold: the state rests until the hold runs out, so one iteration takes it to
+        # the release (or to the end of the run). Its step index is the last grid point before
+        # the release, so the next free step ends on the grid as if the hold had been stepped.
+        t_release = c.t + c.hold_left
+        release = t_release <= t_end
+        k = jnp.ceil(t_release / h).astype(c.step.dtype) - 1
+        k = jnp.clip(jnp.where((k + 1).astype(float) * h < t_release, k + 1, k), c.step, n_steps)
         held = _Carry(
-            t=jnp.where(release, c.t + c.hold_left, t_target),
+            t=jnp.where(release, t_release, t_end),
             x=c.x,
             v=jnp.zeros_like(c.v),
-            hold_left=jnp.where(release, 0.0, c.hold_left - dt),
-            step=jnp.where(release, c.step, c.step + 1),
+            hold_left=jnp.where(release, 0.0, t_release - t_end),
+            step=jnp.where(release, k, n_steps),
             flags=_pack(c.x > x0, c.x <= xc, False, ~release),
-            advances=c.advances,
+            events=c.events + release.astype(c.events.dtype),
         )
 
         new = jax.tree.map(lambda a, b: jnp.where(c_hold, a, b), held, free)
@@ -289,14 +314,80 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
         )
         keep = ~active | bad
         out = jax.tree.map(lambda old, nw: jnp.where(keep, old, nw), c, new)
-        out = out._replace(
-            flags=out.flags | jnp.where(active & bad, _DIVERGED, 0),
-            advances=c.advances + (~keep).astype(c.advances.dtype),
-        )
+        out = out._replace(flags=out.flags | jnp.where(active & bad, _DIVERGED, 0))
         code = _phase_code(c_flow, c_inner, c_closing, c_hold)
         return out, (out.t, out.x, out.v, code)
 
     return body
+
+
+def _integrate_scan(model, start, *, h, n_steps, n_iter, origin):
+    """The iterations as a `lax.scan` of fixed length: every member of a batch runs ``n_iter``
+    of them, idling once done. Differentiable in both modes."""
+    x0, xc = model.contact_displacement, model.subcritical_displacement()
+    body = _iteration(model, h, n_steps, x0, xc, origin)
+    end, rows = jax.lax.scan(body, start, None, length=n_iter, unroll=_UNROLL)
+    return end, _batch_first(rows)
+
+
+def _integrate_loop(model, start, *, h, n_steps, n_iter, origin):
+    """As `_integrate_scan`, bit for bit, but stopping once every member of the batch is done.
+
+    A hold takes one iteration, so a recording that closes for half of each cycle needs about
+    half of the scan's iterations. The loop's condition ignores the batch (``unvmap_any``), so
+    under `jax.vmap` it stays one loop whose rows are written in place; members that are done
+    idle, as in the scan, and the rows never reached are filled with the final state, as the
+    scan's idle iterations would have written them. A `lax.while_loop` has no reverse mode:
+    `_integrate` differentiates `_integrate_scan` instead.
+    """
+    x0, xc = model.contact_displacement, model.subcritical_displacement()
+    body = _iteration(model, h, n_steps, x0, xc, origin)
+    rows = (
+        jnp.zeros(n_iter, start.t.dtype),
+        jnp.zeros(n_iter, start.x.dtype),
+        jnp.zeros(n_iter, start.v.dtype),
+        jnp.zeros(n_iter, start.phase_code().dtype),
+    )
+
+    def trip(state):
+        i, c, rows = state
+        c, chunk = jax.lax.scan(body, c, None, length=_CHUNK, unroll=_UNROLL)
+        rows = tuple(jax.lax.dynamic_update_slice_in_dim(a, r, i, 0) for a, r in zip(rows, chunk))
+        return i + _CHUNK, c, rows
+
+    def running(state):
+        i, c, _ = state
+        return (i < n_iter) & eqxi.unvmap_any(c.active(n_steps))
+
+    i, end, rows = jax.lax.while_loop(running, trip, (0, start, rows))
+    done = jnp.arange(n_iter) >= i
+    final = (end.t, end.x, end.v, end.phase_code())
+    return end, _batch_first(tuple(jnp.where(done, f, r) for f, r in zip(final, rows)))
+
+
+def _batch_first(rows):
+    """``rows`` unchanged, with any `jax.vmap` batch axis placed first.
+
+    `_integrate`'s two implementations must return their outputs with the same batch axes:
+    JAX (0.10) batches a `custom_jvp` function and its derivative rule separately and keeps
+    the primal's axes for both, while a scan stacks its rows behind the batch axis and a while
+    loop's carry puts it in front. A reshape's batching rule moves the batch axis first."""
+    return tuple(jax.lax.reshape(jax.lax.reshape(r, (r.shape[0], 1)), r.shape) for r in rows)
+
+
+@eqx.filter_custom_jvp
+def _integrate(model, start, *, h, n_steps, n_iter, origin):
+    """The integration: end state and per-iteration rows (t, x, v, phase code).
+
+    Evaluated by the early-stopping `_integrate_loop`; differentiated (forward, and so reverse)
+    through `_integrate_scan`, which computes the same values."""
+    return _integrate_loop(model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=origin)
+
+
+@_integrate.def_jvp
+def _integrate_jvp(primals, tangents, *, h, n_steps, n_iter, origin):
+    scan = functools.partial(_integrate_scan, h=h, n_steps=n_steps, n_iter=n_iter, origin=origin)
+    return eqx.filter_jvp(scan, primals, tangents)
 
 
 def _check_static(fps, n_frames, substeps, t_start, max_events):
@@ -350,7 +441,9 @@ def simulate(
             integration so the shifted frames stay inside it.
         initial_displacement: x at t = 0 (cm); default x_0.
         initial_velocity: v at t = 0 (cm/s).
-        max_events: budget of regime switches; default 4 per ms of simulated time plus 16.
+        max_events: budget of regime switches: a run that makes at most this many completes
+            (one with closure holds may make more). Default: 4 per ms of simulated time plus
+            16.
 
     Returns:
         A `Simulation`: the GAW in pixels and the model's area, motion and phases per frame,
@@ -364,7 +457,6 @@ def simulate(
         max_events = int(EVENTS_PER_SECOND * horizon) + 16
     x0 = model.contact_displacement
     xc = model.subcritical_displacement()
-
     x_init = x0 if initial_displacement is None else jnp.asarray(initial_displacement, float)
     v_init = jnp.asarray(initial_velocity, dtype=float)
     x_init = jnp.asarray(x_init, dtype=float)
@@ -375,11 +467,12 @@ def simulate(
         hold_left=jnp.zeros((), float),
         step=jnp.zeros((), jnp.int32),
         flags=_pack(x_init > x0, x_init <= xc, v_init < 0, False),
-        advances=jnp.zeros((), jnp.int32),
+        events=jnp.zeros((), jnp.int32),
     )
-    body = _iteration(model, h, n_steps, x0, xc, t_start)
-    n_iter = n_steps + max_events
-    end, (ts, xs, vs, codes) = jax.lax.scan(body, start, None, length=n_iter, unroll=_UNROLL)
+    n_iter = _CHUNK * -(-(n_steps + max_events) // _CHUNK)
+    end, (ts, xs, vs, codes) = _integrate(
+        model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=t_start
+    )
 
     dense = DenseOutput(
         t=jnp.concatenate([start.t[None], ts]),
@@ -401,6 +494,6 @@ def simulate(
         phase=dense.phase_at(times),
         diverged=end.flag(_DIVERGED),
         complete=(end.step >= n_steps) & ~end.flag(_DIVERGED),
-        n_events=end.advances - end.step,
+        n_events=end.events,
         dense=dense,
     )
