@@ -109,3 +109,15 @@ def test_gradients_finite_across_the_box(name):
 def test_gradients_finite_across_the_box_more(name):
     values, grads, _ = _box_gradients(vfjax.preset(name), _box_points(60, seed=2))
     assert np.all(np.isfinite(np.asarray(grads)))
+
+
+def test_forward_only_simulation_refuses_reverse_mode():
+    m = vfjax.preset("N3")
+
+    def total(k, reverse_mode):
+        return vfjax.simulate(m.set(K=k), FPS, N_FRAMES, reverse_mode=reverse_mode).area.sum()
+
+    k = m.params()["K"]
+    assert np.isfinite(float(jax.grad(total)(k, True)))
+    with pytest.raises(ValueError, match="Reverse-mode differentiation does not work"):
+        jax.grad(total)(k, False)

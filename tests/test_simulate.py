@@ -134,3 +134,43 @@ def test_time_shift_is_differentiable_and_moves_the_samples():
     _, tangent = jax.jvp(gaw, (shift,), (1.0,))
     fd = (gaw(shift + 1e-8) - gaw(shift - 1e-8)) / 2e-8
     assert float(jnp.linalg.norm(tangent - fd) / jnp.linalg.norm(fd)) < 1e-3
+
+
+def test_a_hold_takes_one_iteration_and_the_loop_stops_when_done():
+    # N1 is held closed for ~60 % of the run: its nodes reach the last frame in well under
+    # the grid's 800 steps, and the rest of the node list repeats the final state.
+    sim = vfjax.simulate(vfjax.preset("N1"), FPS, 201)
+    t = np.asarray(sim.dense.t)
+    n_grid = 4 * 200
+    last = int(np.argmax(t >= t[-1]))
+    assert last < 0.5 * n_grid
+    assert t[-1] == 200 / FPS and np.all(np.asarray(sim.dense.x)[last:] == float(sim.dense.x[-1]))
+
+
+def test_the_early_stopping_loop_equals_the_differentiated_scan():
+    # The value comes from the loop, derivatives from a scan of the full budget (or, with
+    # reverse_mode=False, from the loop): all three must agree exactly, in batches that mix
+    # members that close (and stop early) with members that never close.
+    base = vfjax.preset("N1")
+    scales = jnp.asarray([0.8, 0.95, 1.0, 1.05, 1.2, 1.5])
+    batch = jax.vmap(lambda s: base.set(K=base.params()["K"] * s, P_s=base.params()["P_s"] * s))(
+        scales
+    )
+    closes = np.asarray(jax.vmap(lambda m: jnp.any(vfjax.simulate(m, FPS, 201).phase == 3))(batch))
+    assert closes.any() and not closes.all()
+
+    def run(reverse_mode):
+        def f(k):
+            m = jax.vmap(lambda m, k: m.set(K=k))(batch, k)
+            sims = jax.vmap(lambda m: vfjax.simulate(m, FPS, 201, reverse_mode=reverse_mode))(m)
+            return sims.area, sims.dense.t
+
+        k = batch.params()["K"]
+        return f(k), jax.jvp(f, (k,), (k * 1e-3,))
+
+    (area, t), ((area_scan, t_scan), (d_area, _)) = run(True)
+    _, ((area_loop, t_loop), (d_area_loop, _)) = run(False)
+    for a, b in ((area, area_scan), (area, area_loop), (t, t_scan), (t, t_loop)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    np.testing.assert_array_equal(np.asarray(d_area), np.asarray(d_area_loop))
+    assert np.all(np.isfinite(np.asarray(d_area))) and np.any(np.asarray(d_area) != 0)

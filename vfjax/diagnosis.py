@@ -298,9 +298,10 @@ class _Sampler(eqx.Module):
     max_time_shift: float = eqx.field(static=True)
 
     def gaw(self, model, shift):
+        """The GAW; differentiable in forward mode (`jax.jacfwd`) only."""
         sim = simulate(model, self.fps, self.n_frames, substeps=self.substeps,
-                       t_start=self.warmup, time_shift=shift,
-                       max_time_shift=self.max_time_shift)  # fmt: skip
+                       t_start=self.warmup, time_shift=shift, max_time_shift=self.max_time_shift,
+                       reverse_mode=False)  # fmt: skip
         return jnp.maximum(sim.area, 0.0)
 
 

@@ -194,9 +194,10 @@ class _Problem(eqx.Module):
 
     def shape(self, z):
         """Simulated GAW at S = 1 (clipped at 0) and whether the simulation is valid."""
+        # forward mode is all the LM needs (`_residual`): the early-stopping loop's own jvp
         sim = simulate(self.model_at(z, log_s=None).set(S=1.0), self.fps, self.n_frames,
                        substeps=self.substeps, t_start=self.warmup, time_shift=self.shift(z),
-                       max_time_shift=self.max_time_shift)  # fmt: skip
+                       max_time_shift=self.max_time_shift, reverse_mode=False)  # fmt: skip
         ok = sim.complete & ~sim.diverged
         g = jnp.where(ok, sim.area, 0.0)
         return jnp.maximum(g, 0.0), ok

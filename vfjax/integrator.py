@@ -418,6 +418,7 @@ def simulate(
     initial_displacement: ArrayLike | None = None,
     initial_velocity: ArrayLike = 0.0,
     max_events: int | None = None,
+    reverse_mode: bool = True,
 ) -> Simulation:
     """Simulate a glottal area waveform (GAW) sampled at the camera's frame rate.
 
@@ -444,6 +445,11 @@ def simulate(
         max_events: budget of regime switches: a run that makes at most this many completes
             (one with closure holds may make more). Default: 4 per ms of simulated time plus
             16.
+        reverse_mode: keep reverse-mode derivatives (`jax.grad`, `jax.vjp`) available; they
+            are then taken through a scan of the full iteration budget. False: derivatives
+            are taken through the early-stopping loop itself, in forward mode only
+            (`jax.jvp`, `jax.jacfwd`; reverse mode raises), which is faster when the folds
+            close. The values are the same either way.
 
     Returns:
         A `Simulation`: the GAW in pixels and the model's area, motion and phases per frame,
@@ -470,7 +476,8 @@ def simulate(
         events=jnp.zeros((), jnp.int32),
     )
     n_iter = _CHUNK * -(-(n_steps + max_events) // _CHUNK)
-    end, (ts, xs, vs, codes) = _integrate(
+    integrate = _integrate if reverse_mode else _integrate_loop
+    end, (ts, xs, vs, codes) = integrate(
         model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=t_start
     )
 
