@@ -138,6 +138,8 @@ def test_fit_many_matches_single_fits():
         assert r.params["K"] / float(truth.params()["K"]) == pytest.approx(f, rel=0.01)
         assert r.params["S"] == pytest.approx(43.7988, rel=0.01)
         assert r.nmse < 1e-4
+    for rec, r in zip(recs, results):  # the reported NMSE is that of the fitted GAW, re-simulated
+        assert r.nmse == pytest.approx(float(vfjax.nmse(rec.area, r.fitted_gaw(rec))), rel=1e-9)
     assert "C_f" not in results[3].params and "C_f" not in results[3].settings["bounds"]
     assert float(results[3].model.params()["C_f"]) == c_f
     with pytest.raises(ValueError, match="held"):
