@@ -49,6 +49,20 @@ def batch_of(model, n, seed=0):
     )
 
 
+def iterations_needed(batch, substeps):
+    """Per member: the iterations its integration took (the index of its last new node), and
+    whether it closes (reaches the closed phase)."""
+    sims = jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=substeps))(batch)
+    t = np.asarray(sims.dense.t)
+    need = np.argmax(t >= t[:, -1:], axis=1)
+    return need, np.asarray(jnp.any(sims.phase == vfjax.phases.CLOSED, axis=1))
+
+
+def iterations_budget(model):
+    """Length of the node list minus the initial node: the scan's iteration count."""
+    return vfjax.simulate(model, FPS, N).dense.t.shape[0] - 1
+
+
 def best_time(fn, repeats):
     times = []
     for _ in range(repeats):
@@ -146,6 +160,15 @@ def main():
                 f"({b / t * t_base / n_rec:5.1f}x numba timed alongside: "
                 f"{n_rec / t_base:.0f}/s)   first run {compile_s:.2f} s"
             )
+
+    print("iterations each member needs (the loop runs as long as the batch's slowest member;")
+    print(f"  the scan that derivatives go through runs them all: {iterations_budget(model)}):")
+    for name in ("N1", "N2", "N3", "N4"):
+        need, closes = iterations_needed(batch_of(vfjax.preset(name), 64), args.substeps)
+        print(
+            f"  batch of 64 around {name}: max {need.max()}, median {int(np.median(need))}, "
+            f"min {need.min()}; {int((~closes).sum())} of 64 never close"
+        )
 
     steps = (N - 1) * 128
     print("equal step k=128 (particle-steps per second; one step = one RK4 step of one model):")
