@@ -54,8 +54,9 @@ EVENTS_PER_SECOND = 4000.0
 #: +10 % at batch 1, +5-8 % at 32-64, no change at 256 (`benchmarks/throughput.py`).
 _UNROLL = 2
 #: Iterations per trip of the early-stopping loop: a scan of 16, whose rows are written as one
-#: block (writing each iteration's row on its own was 10-20 % slower). The loop's length is
-#: rounded up to a multiple of it, so it overshoots the last needed iteration by at most 15.
+#: block (writing each iteration's row on its own was slower: by a third at batch 1, 6 % at 64,
+#: 14 % at 256). The loop's length is rounded up to a multiple of it, so it overshoots the last
+#: needed iteration by at most 15.
 _CHUNK = 16
 #: A state beyond these bounds is reported as diverged (cm, cm/s).
 _X_LIMIT = 1.0
@@ -252,8 +253,7 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
 
     def body(c: _Carry, _):
         c_flow, c_inner, c_closing = c.flag(_FLOW), c.flag(_INNER), c.flag(_CLOSING)
-        c_hold, c_diverged = c.flag(_HOLD), c.flag(_DIVERGED)
-        active = (c.step < n_steps) & ~c_diverged
+        c_hold, active = c.flag(_HOLD), c.active(n_steps)
         one = jnp.where(c.events >= 0, 1.0, 2.0)  # always 1: see `_computed_once`
         t_target = (c.step + 1).astype(float) * h
         dt = t_target - c.t
