@@ -60,7 +60,7 @@ def iterations_needed(batch, substeps):
 
 def iterations_budget(model):
     """Length of the node list minus the initial node: the scan's iteration count."""
-    return vfjax.simulate(model, FPS, N).dense.t.shape[0] - 1
+    return jax.eval_shape(lambda m: vfjax.simulate(m, FPS, N), model).dense.t.shape[0] - 1
 
 
 def best_time(fn, repeats):
@@ -107,8 +107,11 @@ def main():
         f"({t_numba * 1e3:.2f} ms each)"
     )
 
+    def batched(k):
+        return jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=k).area)
+
     def runner(k):
-        return jax.jit(jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=k).area))
+        return jax.jit(batched(k))
 
     mesh = Mesh(np.array(devices), ("batch",))
     split = NamedSharding(mesh, PartitionSpec("batch"))
@@ -123,10 +126,9 @@ def main():
             # simulator on each device's share as it is, so each share's loop stops when that
             # share is done (under plain sharding the loop's test would be a cross-device
             # reduction at every trip)
-            per_device = jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=args.substeps).area)
             mapped = jax.jit(
                 jax.shard_map(
-                    per_device,
+                    batched(args.substeps),
                     mesh=mesh,
                     in_specs=PartitionSpec("batch"),
                     out_specs=PartitionSpec("batch"),

@@ -156,7 +156,9 @@ def test_the_early_stopping_loop_equals_the_differentiated_scan():
     batch = jax.vmap(lambda s: base.set(K=base.params()["K"] * s, P_s=base.params()["P_s"] * s))(
         scales
     )
-    closes = np.asarray(jax.vmap(lambda m: jnp.any(vfjax.simulate(m, FPS, 201).phase == 3))(batch))
+    closes = np.asarray(
+        jax.vmap(lambda m: jnp.any(vfjax.simulate(m, FPS, 201).phase == phases.CLOSED))(batch)
+    )
     assert closes.any() and not closes.all()
 
     def run(reverse_mode):

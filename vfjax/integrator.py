@@ -243,12 +243,13 @@ def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one):
     return event, theta, xe, ve, is_flow, is_inner, is_dir
 
 
-def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
+def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
     """One scan iteration: a full grid step, a step up to an event, or a stretch of hold.
 
     The model's time-dependent terms see time measured from ``origin`` (`simulate`'s
     ``t_start``)."""
     has_hold = model.closure_duration is not None
+    x0, xc = model.contact_displacement, model.subcritical_displacement()
     t_end = float(n_steps) * h  # the last grid point, as `t_target` computes it
 
     def body(c: _Carry, _):
@@ -324,8 +325,7 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, x0, xc, origin):
 def _integrate_scan(model, start, *, h, n_steps, n_iter, origin):
     """The iterations as a `lax.scan` of fixed length: every member of a batch runs ``n_iter``
     of them, idling once done. Differentiable in both modes."""
-    x0, xc = model.contact_displacement, model.subcritical_displacement()
-    body = _iteration(model, h, n_steps, x0, xc, origin)
+    body = _iteration(model, h, n_steps, origin)
     end, rows = jax.lax.scan(body, start, None, length=n_iter, unroll=_UNROLL)
     return end, _batch_first(rows)
 
@@ -340,8 +340,7 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin):
     scan's idle iterations would have written them. A `lax.while_loop` has no reverse mode:
     `_integrate` differentiates `_integrate_scan` instead.
     """
-    x0, xc = model.contact_displacement, model.subcritical_displacement()
-    body = _iteration(model, h, n_steps, x0, xc, origin)
+    body = _iteration(model, h, n_steps, origin)
     rows = (
         jnp.zeros(n_iter, start.t.dtype),
         jnp.zeros(n_iter, start.x.dtype),
