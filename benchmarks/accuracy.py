@@ -28,9 +28,17 @@ FPS, N = 4000.0, 201
 KS = (1, 2, 3, 4, 6, 8, 16, 32, 64, 128)
 BOX_KS = (3, 4, 6, 8)
 REF_K = 1024
-VARIANTS = {"": (1.0, 1.0), " K-30%": (0.7, 1.0), " K+30%": (1.3, 1.0),
-            " Cf-30%": (1.0, 0.7), " Cf+30%": (1.0, 1.3), " K-80%": (0.2, 1.0),
-            " K+80%": (1.8, 1.0), " Cf-80%": (1.0, 0.2), " Cf+80%": (1.0, 1.8)}  # fmt: skip
+VARIANTS = {
+    "": (1.0, 1.0),
+    " K-30%": (0.7, 1.0),
+    " K+30%": (1.3, 1.0),
+    " Cf-30%": (1.0, 0.7),
+    " Cf+30%": (1.0, 1.3),
+    " K-80%": (0.2, 1.0),
+    " K+80%": (1.8, 1.0),
+    " Cf-80%": (1.0, 0.2),
+    " Cf+80%": (1.0, 1.8),
+}
 
 
 def nmse(a, ref):
@@ -57,14 +65,23 @@ def box_study(n_sets, seed=0):
         ref = run(64)
         for k in BOX_KS:
             errors[k].extend(nmse(a, r) for a, r in zip(run(k), ref))
-    print(f"\nRandom sets in the ±80 % box of K, C_f, S, t_c, P_s ({n_sets} per subject, "
-          "reference k=64)")  # fmt: skip
-    print("k".ljust(4) + "median".rjust(10) + "99th pct".rjust(10) + "worst".rjust(10)
-          + "   sets with NMSE > 1e-4")  # fmt: skip
+    print(
+        f"\nRandom sets in the ±80 % box of K, C_f, S, t_c, P_s ({n_sets} per subject, "
+        "reference k=64)"
+    )
+    print(
+        "k".ljust(4)
+        + "median".rjust(10)
+        + "99th pct".rjust(10)
+        + "worst".rjust(10)
+        + "   sets with NMSE > 1e-4"
+    )
     for k in BOX_KS:
         e = np.asarray(errors[k])
-        print(f"{k:<4d}{np.median(e):10.1e}{np.percentile(e, 99):10.1e}{e.max():10.1e}"
-              f"   {int(np.sum(e > 1e-4))} of {e.size}")  # fmt: skip
+        print(
+            f"{k:<4d}{np.median(e):10.1e}{np.percentile(e, 99):10.1e}{e.max():10.1e}"
+            f"   {int(np.sum(e > 1e-4))} of {e.size}"
+        )
 
 
 def main():
@@ -80,8 +97,9 @@ def main():
         p = model.params()
 
         def run(f, k, model=model, p=p):
-            return vfjax.simulate(model.set(K=p["K"] * f[0], C_f=p["C_f"] * f[1]), FPS, N,
-                                  substeps=k).area  # fmt: skip
+            return vfjax.simulate(
+                model.set(K=p["K"] * f[0], C_f=p["C_f"] * f[1]), FPS, N, substeps=k
+            ).area
 
         ref = np.asarray(jax.jit(jax.vmap(lambda f: run(f, REF_K)))(factors))
         per_k = {k: np.asarray(jax.jit(jax.vmap(lambda f, k=k: run(f, k)))(factors)) for k in KS}
@@ -92,10 +110,12 @@ def main():
                 .params()
                 .items()
             }
-            paper = simulate_gaw(q["K"], q["C_f"], q["S"], q["t_c"], q["P_s"], q["M"], q["l"],
-                                 FPS, N, 128)  # fmt: skip
-            rows.append((name + label, [nmse(per_k[k][i], ref[i]) for k in KS],
-                         nmse(paper, ref[i])))  # fmt: skip
+            paper = simulate_gaw(
+                q["K"], q["C_f"], q["S"], q["t_c"], q["P_s"], q["M"], q["l"], FPS, N, 128
+            )
+            rows.append(
+                (name + label, [nmse(per_k[k][i], ref[i]) for k in KS], nmse(paper, ref[i]))
+            )
 
     head = "set".ljust(12) + "".join(f"k={k}".rjust(10) for k in KS) + "  paper k=128"
     print(f"NMSE against vfjax at k={REF_K} (dt = 1/(k fps), fps = {FPS:g}, {N} frames)")

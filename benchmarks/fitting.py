@@ -58,8 +58,18 @@ def numpy_objective(recording, model, warmup, max_shift):
     def cost(z):
         out = np.empty(len(z))
         for i, (_, lk, lc) in enumerate(z):
-            g = simulate_gaw(p["K"] * np.exp(lk), p["C_f"] * np.exp(lc), 1.0, p["t_c"],
-                             p["P_s"], p["M"], p["l"], fps, w + m + n, 128)  # fmt: skip
+            g = simulate_gaw(
+                p["K"] * np.exp(lk),
+                p["C_f"] * np.exp(lc),
+                1.0,
+                p["t_c"],
+                p["P_s"],
+                p["M"],
+                p["l"],
+                fps,
+                w + m + n,
+                128,
+            )
             g = np.clip(g, 0, None)
             windows = np.lib.stride_tricks.sliding_window_view(g[w:], n)[: m + 1]
             s = windows @ a / np.maximum(np.sum(windows * windows, axis=1), 1e-300)
@@ -104,21 +114,32 @@ def main():
         hybrid_times.append(th)
         fit(model, rec, params=PARAMS, iterations=50, chunk=50, polish=False, progress=False)
         t0 = time.perf_counter()
-        p = fit(model, rec, params=PARAMS, iterations=args.pso_iterations, chunk=50,
-                polish=False, progress=False)  # fmt: skip
+        p = fit(
+            model,
+            rec,
+            params=PARAMS,
+            iterations=args.pso_iterations,
+            chunk=50,
+            polish=False,
+            progress=False,
+        )
         tp = time.perf_counter() - t0
         # when the hybrid's best first came within 1 % of the PSO-1000 cost
         trace = np.r_[h.pso_trace, h.lm_trace]
         swarm_best = p.pso_trace[-1]
         hit = np.flatnonzero(trace <= 1.01 * swarm_best)
         reach = h.trace_times[hit[0]] if hit.size else float("nan")
-        print(f"{rec.name:12s} {swarm_best:11.4e} {p.nmse:11.4e} {tp:8.1f} {h.nmse:12.4e} "
-              f"{th:9.1f} {reach:8.2f} {reach / tp:6.3f}  {bool(hit.size)}")  # fmt: skip
+        print(
+            f"{rec.name:12s} {swarm_best:11.4e} {p.nmse:11.4e} {tp:8.1f} {h.nmse:12.4e} "
+            f"{th:9.1f} {reach:8.2f} {reach / tp:6.3f}  {bool(hit.size)}"
+        )
 
     print(f"\nc) one fit after compilation: {min(hybrid_times):.1f} to {max(hybrid_times):.1f} s")
 
-    print("\nb) pyswarms GlobalBestPSO (NumPy objective with the numba model at k = 128),"
-          " 48 particles x 60 iterations, same search box (S, shift profiled out)")  # fmt: skip
+    print(
+        "\nb) pyswarms GlobalBestPSO (NumPy objective with the numba model at k = 128),"
+        " 48 particles x 60 iterations, same search box (S, shift profiled out)"
+    )
     import pyswarms as ps
 
     for rec in recs:
@@ -129,22 +150,28 @@ def main():
         lo = np.log([0.1, 0.25, 0.05])
         hi = np.log([10.0, 4.0, 20.0])
         opt = ps.single.GlobalBestPSO(
-            n_particles=48, dimensions=3, bounds=(lo, hi),
+            n_particles=48,
+            dimensions=3,
+            bounds=(lo, hi),
             options={"c1": 1.49618, "c2": 1.49618, "w": 0.7298},
             init_pos=None,
-        )  # fmt: skip
+        )
         cost(np.zeros((1, 3)))  # numba compile
         np.random.seed(0)  # noqa: NPY002  (pyswarms draws from the global NumPy RNG)
         t0 = time.perf_counter()
         best, _ = opt.optimize(cost, iters=60, verbose=False)
         tps = time.perf_counter() - t0
-        print(f"{rec.name:12s} pyswarms NMSE {best:.4e} in {tps:.1f} s; vfjax hybrid NMSE "
-              f"{h.nmse:.4e} in {h.timings['total_s']:.1f} s")  # fmt: skip
+        print(
+            f"{rec.name:12s} pyswarms NMSE {best:.4e} in {tps:.1f} s; vfjax hybrid NMSE "
+            f"{h.nmse:.4e} in {h.timings['total_s']:.1f} s"
+        )
 
     print("\nd) many recordings: fit_many against a loop of fit (8 recordings of the demo kind)")
     many = [demo_recording("N3", seed=s) for s in range(8)]
-    many = [vfjax.Recording(r.area, r.fps, metadata=r.metadata, name=f"demo{s}")
-            for s, r in enumerate(many)]  # fmt: skip
+    many = [
+        vfjax.Recording(r.area, r.fps, metadata=r.metadata, name=f"demo{s}")
+        for s, r in enumerate(many)
+    ]
     start = initial_model(many[0], template="N4")
     fit_many(start, many[:8], params=PARAMS)  # compile
     t0 = time.perf_counter()

@@ -72,5 +72,6 @@ def simulate_preset(name: str, fps: float = 4000.0, n_frames: int = 201, substep
     import vfjax
 
     p = {k: float(v) for k, v in vfjax.preset(name).params().items()}
-    return simulate_gaw(p["K"], p["C_f"], p["S"], p["t_c"], p["P_s"], p["M"], p["l"],
-                        fps, n_frames, substeps)  # fmt: skip
+    return simulate_gaw(
+        p["K"], p["C_f"], p["S"], p["t_c"], p["P_s"], p["M"], p["l"], fps, n_frames, substeps
+    )

@@ -75,8 +75,10 @@ def main():
     print(f"{'plain Otsu':16s} {scores(otsu, truth)[0]:14.4f} {scores(otsu, truth)[1]:10.3f}")
     for reg in (True, False):
         best = min(_timed(video, reg) for _ in range(3))
-        print(f"speed ({video.shape[1]}x{video.shape[2]}, register={reg}): "
-              f"{len(video) / best:.0f} frames/s")  # fmt: skip
+        print(
+            f"speed ({video.shape[1]}x{video.shape[2]}, register={reg}): "
+            f"{len(video) / best:.0f} frames/s"
+        )
 
 
 def _timed(video, register):

@@ -52,7 +52,7 @@ def batch_of(model, n, seed=0):
 def iterations_needed(batch, substeps):
     """Per member: the iterations its integration took (the index of its last new node), and
     whether it closes (reaches the closed phase)."""
-    sims = jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=substeps))(batch)
+    sims = jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=substeps, throw=False))(batch)
     t = np.asarray(sims.dense.t)
     need = np.argmax(t >= t[:, -1:], axis=1)
     return need, np.asarray(jnp.any(sims.phase == vfjax.phases.CLOSED, axis=1))
@@ -108,7 +108,7 @@ def main():
     )
 
     def batched(k):
-        return jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=k).area)
+        return jax.vmap(lambda m: vfjax.simulate(m, FPS, N, substeps=k, throw=False).area)
 
     def runner(k):
         return jax.jit(batched(k))

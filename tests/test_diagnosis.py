@@ -69,8 +69,9 @@ def test_gap_sensitivity_is_the_camera_scale(shared_dir):
     result = vfjax.fit(vfjax.preset("N3"), rec, params=("S",), iterations=0, progress=False)
     model = result.model.with_term(GlottalGap())
     shift = jnp.asarray(result.time_shift)
-    cols = _effect_columns(_sampler(result, rec), _stack([model]), ("a_gap",), jnp.zeros((1, 1)),
-                           shift)  # fmt: skip
+    cols = _effect_columns(
+        _sampler(result, rec), _stack([model]), ("a_gap",), jnp.zeros((1, 1)), shift
+    )
     cols = np.asarray(cols)[0, :, 0]
     open_ = result.fitted_gaw(rec) > 0
     assert np.allclose(cols[open_], 100.0 * result.params["S"], rtol=1e-12)
@@ -161,8 +162,9 @@ def _shared(shared_dir, name):
     folder = shared_dir / "data" / "synthetic"
     rec = vfjax.load_recording(folder / f"{name}.csv")
     answer = json.loads((folder / f"{name}.answer.json").read_text())
-    result = vfjax.fit(vfjax.initial_model(rec), rec, params=("S", "K", "C_f", "t_c"),
-                       progress=False)  # fmt: skip
+    result = vfjax.fit(
+        vfjax.initial_model(rec), rec, params=("S", "K", "C_f", "t_c"), progress=False
+    )
     return rec, answer, result, vfjax.diagnose(result, rec)
 
 
@@ -217,7 +219,7 @@ CASES = {
         PressureModulation(a_pm=0.08, f_m=10.0, phi=1.0),
         None,
         ("a_pm", 0.08),
-    ),  # fmt: skip
+    ),
     "MucosalDelay": ("N3", MucosalDelay(tau=4e-4), None, ("tau", 4e-4)),
     # the flow separation's strength trades off against C_f along a flat valley (from the
     # truth, LM walks to fs_strength 1.8, C_f x1.75 at an equal NMSE): the GAW fixes their
@@ -232,8 +234,9 @@ DEFAULT = ()  # the whole matrix is slow (about 2 minutes a case); run with -m s
 
 def _hidden_case(case):
     name, effect, dropped, truth = CASES[case]
-    rec = demo_recording(name, effect=effect, jitter=0.003, seed=3, n_frames=N_FRAMES,
-                         name_suffix=f"_{case}")  # fmt: skip
+    rec = demo_recording(
+        name, effect=effect, jitter=0.003, seed=3, n_frames=N_FRAMES, name_suffix=f"_{case}"
+    )
     start = vfjax.initial_model(rec)
     params = ("S", "K", "C_f", "t_c")
     if dropped is not None:
@@ -271,8 +274,9 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
     figures and names every candidate (hidden gap, N3, 1 px noise: the gap ranks first);
     `diagnosis.extend` adds the gap and recovers it."""
     rec = demo_recording("N3", noise_px=1.0, effect=GlottalGap(a_gap=0.008))
-    result = vfjax.fit(vfjax.preset("N3"), rec, params=("S", "K", "C_f"), iterations=20,
-                       progress=False)  # fmt: skip
+    result = vfjax.fit(
+        vfjax.preset("N3"), rec, params=("S", "K", "C_f"), iterations=20, progress=False
+    )
     d = vfjax.diagnose(result, rec, refit=False)
     assert d.refits == {} and d.control is None
     assert d.ranking[0] == "GlottalGap" and d.scores["GlottalGap"].direction == +1

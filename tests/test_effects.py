@@ -22,8 +22,12 @@ FPS = 4000.0
 def test_every_effect_at_its_off_value_changes_nothing():
     base = vfjax.preset("N1")
     ref = np.asarray(vfjax.simulate(base, FPS, 201).area)
-    for effect in (GlottalGap(), CubicStiffness(), PressureModulation(f_m=7.0, phi=0.5),
-                   MucosalDelay()):  # fmt: skip
+    for effect in (
+        GlottalGap(),
+        CubicStiffness(),
+        PressureModulation(f_m=7.0, phi=0.5),
+        MucosalDelay(),
+    ):
         for name, off in type(effect).off_values.items():
             assert float(effect.__getattribute__(type(effect).parameters[name][0])) == off
         gaw = np.asarray(vfjax.simulate(base.with_effect(effect), FPS, 201).area)
@@ -87,8 +91,15 @@ def test_a_modulation_needs_a_longer_warmup():
     # the demo data start after the model's warm-up: the true model, refitted for the time
     # shift and S only, reaches the noise floor (2 px on a ~500 px GAW)
     truth = base.with_effect(PressureModulation(a_pm=0.06, f_m=7.0, phi=0.5))
-    fit = vfjax.fit(truth, rec, params=("S", "a_pm"), iterations=2, swarm_size=4,
-                    bounds={"a_pm": (0.0599, 0.0601)}, progress=False)  # fmt: skip
+    fit = vfjax.fit(
+        truth,
+        rec,
+        params=("S", "a_pm"),
+        iterations=2,
+        swarm_size=4,
+        bounds={"a_pm": (0.0599, 0.0601)},
+        progress=False,
+    )
     assert fit.settings["warmup"] == 0.1
     noise = rec.n_frames * 2.0**2 / float(np.sum(rec.area**2))
     assert fit.nmse < 2.0 * noise

@@ -78,13 +78,25 @@ def test_shared_syn_base_fit_reaches_the_true_parameters_error(shared_dir):
     folder = shared_dir / "data" / "synthetic"
     rec = load_recording(folder / "syn_base.csv")
     tp = json.loads((folder / "syn_base.answer.json").read_text())["true_params"]
-    truth = vfjax.paper_model(K_N_per_m=tp["K_N_per_m"], C_f_g_per_s=tp["Cf"],
-                              S_px_per_mm2=tp["S_px_per_mm2"], t_c_s=tp["t_c_s"],
-                              P_s_dyne_per_cm2=tp["Ps_dyn_per_cm2"], mass_g=tp["M_g"],
-                              length_cm=tp["l_cm"])  # fmt: skip
+    truth = vfjax.paper_model(
+        K_N_per_m=tp["K_N_per_m"],
+        C_f_g_per_s=tp["Cf"],
+        S_px_per_mm2=tp["S_px_per_mm2"],
+        t_c_s=tp["t_c_s"],
+        P_s_dyne_per_cm2=tp["Ps_dyn_per_cm2"],
+        mass_g=tp["M_g"],
+        length_cm=tp["l_cm"],
+    )
     s = tp["S_px_per_mm2"]
-    at_truth = fit(truth, rec, params=("S",), bounds={"S": (s * (1 - 1e-9), s * (1 + 1e-9))},
-                   iterations=20, polish=False, progress=False)  # fmt: skip
+    at_truth = fit(
+        truth,
+        rec,
+        params=("S",),
+        bounds={"S": (s * (1 - 1e-9), s * (1 + 1e-9))},
+        iterations=20,
+        polish=False,
+        progress=False,
+    )
     result = fit(vfjax.preset("N1"), rec, progress=False)
     assert result.nmse <= 1.1 * at_truth.nmse, (result.nmse, at_truth.nmse)
     assert at_truth.params["S"] == pytest.approx(s, rel=1e-6)
@@ -110,13 +122,28 @@ def test_json_round_trip_without_loss(n1_fit, tmp_path):
     path = tmp_path / "fit.json"
     result.to_json(path)
     schema = json.loads(
-        (vfjax.__file__ and __import__("pathlib").Path(__file__).parents[1] / "data_schema"
-         / "fit_result.schema.json").read_text()
-    )  # fmt: skip
+        (
+            vfjax.__file__
+            and __import__("pathlib").Path(__file__).parents[1]
+            / "data_schema"
+            / "fit_result.schema.json"
+        ).read_text()
+    )
     jsonschema.validate(json.loads(path.read_text()), schema)
     back = vfjax.FitResult.from_json(path)
-    for f in ("params", "units", "time_shift", "nmse", "pso_trace", "lm_trace", "timings",
-              "n_simulations", "optimistix_result", "settings", "recording_name"):  # fmt: skip
+    for f in (
+        "params",
+        "units",
+        "time_shift",
+        "nmse",
+        "pso_trace",
+        "lm_trace",
+        "timings",
+        "n_simulations",
+        "optimistix_result",
+        "settings",
+        "recording_name",
+    ):
         assert getattr(back, f) == getattr(result, f), f
     assert back.model.params().keys() == result.model.params().keys()
     for k, v in result.model.params().items():
@@ -129,8 +156,10 @@ def test_fit_many_matches_single_fits():
     batch, each fit recovers its truth; the held parameter stays put and is not reported."""
     truth = vfjax.preset("N1")
     factors = [0.9, 1.0, 1.1, 1.05]
-    recs = [_recording(truth.set(K=truth.params()["K"] * f), t_start=0.03 + 0.001 * i, name=f"r{i}")
-            for i, f in enumerate(factors)]  # fmt: skip
+    recs = [
+        _recording(truth.set(K=truth.params()["K"] * f), t_start=0.03 + 0.001 * i, name=f"r{i}")
+        for i, f in enumerate(factors)
+    ]
     c_f = float(truth.params()["C_f"])
     models = [_start(truth)] * 3 + [_start(truth).set(C_f=c_f)]
     results = fit_many(models, recs, hold=[(), (), (), ("C_f",)])
@@ -181,8 +210,9 @@ def test_lm_linearisation_is_the_residuals_jacobian():
     problem, _, _, _ = _prepare(_start(truth), rec, ("S", "K", "C_f"), 0.02, 4, None)
     y = np.array([-0.2, 0.3, 0.4, -0.1])
     jac = np.asarray(jax.jacfwd(_residual)(y, problem))
-    np.testing.assert_allclose(jac, np.asarray(jax.jacfwd(problem.residual)(y)), rtol=1e-10,
-                               atol=1e-14)  # fmt: skip
+    np.testing.assert_allclose(
+        jac, np.asarray(jax.jacfwd(problem.residual)(y)), rtol=1e-10, atol=1e-14
+    )
     h = 1e-6
     for i in range(y.size):
         e = np.eye(y.size)[i] * h
@@ -220,6 +250,7 @@ def test_fits_from_another_subject_find_the_right_basin():
     for seed in range(3):
         rec = demo_recording("N3", seed=seed)
         start = initial_model(rec, template="N4")
-        result = fit(start, rec, params=("S", "K", "C_f", "t_c"), key=jax.random.key(seed),
-                     progress=False)  # fmt: skip
+        result = fit(
+            start, rec, params=("S", "K", "C_f", "t_c"), key=jax.random.key(seed), progress=False
+        )
         assert result.nmse < 1e-3, (seed, result.nmse, result.params)

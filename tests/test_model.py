@@ -107,12 +107,27 @@ def test_switching_terms_off_and_on():
         (lambda: Elastic(K=float("nan")), "K"),
         (lambda: TanhDamping(C_f=-1.0), "C_f"),
         (lambda: ClosureHold(t_c=-1e-3), "t_c"),
-        (lambda: vfjax.paper_model(K_N_per_m=-3.0, C_f_g_per_s=1.0, S_px_per_mm2=1.0,
-                                   t_c_s=1e-3, P_s_dyne_per_cm2=1e4, sex="male"), "K"),
-        (lambda: vfjax.preset("N1").set(S=0.0).__class__(
-            vfjax.preset("N1").subject, vfjax.preset("N1").terms, 0.0), "S"),
+        (
+            lambda: vfjax.paper_model(
+                K_N_per_m=-3.0,
+                C_f_g_per_s=1.0,
+                S_px_per_mm2=1.0,
+                t_c_s=1e-3,
+                P_s_dyne_per_cm2=1e4,
+                sex="male",
+            ),
+            "K",
+        ),
+        (
+            lambda: (
+                vfjax.preset("N1")
+                .set(S=0.0)
+                .__class__(vfjax.preset("N1").subject, vfjax.preset("N1").terms, 0.0)
+            ),
+            "S",
+        ),
     ],
-)  # fmt: skip
+)
 def test_non_physical_parameters_raise_naming_the_parameter(build, name):
     with pytest.raises(ValueError, match=name):
         build()

@@ -95,8 +95,10 @@ VARIANTS = {
 @functools.cache
 def _figures(name):
     areas, gaws, phases = _variants(vfjax.preset(name), jnp.asarray(list(VARIANTS.values())))
-    return {k: (np.asarray(areas[i]), np.asarray(gaws[i]), np.asarray(phases[i]))
-            for i, k in enumerate(VARIANTS)}  # fmt: skip
+    return {
+        k: (np.asarray(areas[i]), np.asarray(gaws[i]), np.asarray(phases[i]))
+        for i, k in enumerate(VARIANTS)
+    }
 
 
 @pytest.mark.parametrize("name", ["N1", "N3"])

@@ -19,8 +19,11 @@ def _schema(name):
 
 def test_shared_synthetic_sidecars_validate(shared_dir):
     schema = _schema("recording.schema.json")
-    sidecars = [p for p in (shared_dir / "data" / "synthetic").glob("*.json")
-                if not p.name.endswith(".answer.json")]  # fmt: skip
+    sidecars = [
+        p
+        for p in (shared_dir / "data" / "synthetic").glob("*.json")
+        if not p.name.endswith(".answer.json")
+    ]
     assert len(sidecars) >= 3
     for path in sidecars:
         jsonschema.validate(json.loads(path.read_text()), schema)

@@ -49,8 +49,12 @@ def test_drift_and_flicker(clip):
     video, truth = clip
     rng = np.random.default_rng(1)
     walk = np.cumsum(rng.integers(-1, 2, (len(video), 2)), axis=0).clip(-4, 4)
-    moved = np.stack([ndimage.shift(f.astype(np.float32), s, order=0, mode="nearest")
-                      for f, s in zip(video, walk)])  # fmt: skip
+    moved = np.stack(
+        [
+            ndimage.shift(f.astype(np.float32), s, order=0, mode="nearest")
+            for f, s in zip(video, walk)
+        ]
+    )
     moved *= (1 + 0.1 * rng.standard_normal(len(video)))[:, None, None]
     median_rel, closed_ok = _scores(segment_video(moved).area, truth)
     assert median_rel <= 0.03 and closed_ok >= 0.9

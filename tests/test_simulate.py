@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import vfjax
 from vfjax import ClosureHold, Elastic, Subject, TanhDamping, VocalFoldModel, phases
@@ -89,21 +90,31 @@ def test_vmap_over_parameters_equals_a_loop():
 def test_divergence_is_flagged_not_crashed():
     # A 1 µg fold with N1's stiffness: omega * dt ~ 10, RK4 is unstable and the state blows up.
     m = vfjax.preset("N1").set(M=1e-6).without(ClosureHold)
-    sim = jax.jit(lambda m: vfjax.simulate(m, FPS, 101))(m)
+    sim = jax.jit(lambda m: vfjax.simulate(m, FPS, 101, throw=False))(m)
     assert bool(sim.diverged) and not bool(sim.complete)
+    assert bool(sim.result == vfjax.RESULTS.diverged)
     area = np.asarray(sim.area)
     assert np.isnan(area[-1])  # nothing after the divergence is passed off as a result
     assert np.all(np.isfinite(area[: np.argmax(np.isnan(area))]))
     # and a healthy model is not flagged
     ok = vfjax.simulate(vfjax.preset("N1"), FPS, 101)
     assert not bool(ok.diverged) and bool(ok.complete)
+    assert bool(ok.result == vfjax.RESULTS.successful)
+    # throw=True (the default) raises, outside jit and inside it
+    with pytest.raises(vfjax.SimulationError, match="physical range"):
+        vfjax.simulate(m, FPS, 101)
+    with pytest.raises(Exception, match="physical range"):
+        jax.jit(lambda m: vfjax.simulate(m, FPS, 101).area)(m).block_until_ready()
 
 
 def test_event_budget_exhaustion_is_reported():
     # without the hold every grid step and every switch takes an iteration: 3 do not suffice
     m = vfjax.preset("N1").without(ClosureHold)
-    sim = vfjax.simulate(m, FPS, 201, max_events=3)
+    sim = vfjax.simulate(m, FPS, 201, max_events=3, throw=False)
     assert not bool(sim.complete) and not bool(sim.diverged)
+    assert bool(sim.result == vfjax.RESULTS.event_budget_exhausted)
+    with pytest.raises(vfjax.SimulationError, match="event budget"):
+        vfjax.simulate(m, FPS, 201, max_events=3)
     assert np.isnan(np.asarray(sim.area)[-1])
     # a budget of as many switches as the run makes is enough
     n = int(vfjax.simulate(m, FPS, 201).n_events)

@@ -27,11 +27,16 @@ def test_mraw_round_trip(tmp_path, bits):
     rng = np.random.default_rng(bits)
     top = 255 if bits == 8 else 4095
     video = rng.integers(0, top + 1, (6, 16, 24)).astype(np.uint8 if bits == 8 else np.uint16)
-    _, cih16 = pyMRAW.save_mraw(video.astype(np.uint16), str(tmp_path / "v16.cih"), bit_depth=16,
-                                info_dict={"Record Rate(fps)": 4000})  # fmt: skip
+    _, cih16 = pyMRAW.save_mraw(
+        video.astype(np.uint16),
+        str(tmp_path / "v16.cih"),
+        bit_depth=16,
+        info_dict={"Record Rate(fps)": 4000},
+    )
     if bits == 8:
-        _, cih = pyMRAW.save_mraw(video, str(tmp_path / "v8.cih"), bit_depth=8,
-                                  info_dict={"Record Rate(fps)": 4000})  # fmt: skip
+        _, cih = pyMRAW.save_mraw(
+            video, str(tmp_path / "v8.cih"), bit_depth=8, info_dict={"Record Rate(fps)": 4000}
+        )
     elif bits == 12:
         cih = _write_12bit(video, pathlib.Path(cih16), tmp_path / "v12.cih")
     else:
@@ -46,8 +51,9 @@ def test_clip_a_as_12bit_mraw(shared_dir, tmp_path):
     video, _ = read_video(folder / "clip_a.tif")
     truth = np.loadtxt(folder / "clip_a_truth.csv", delimiter=",", skiprows=1)[:, 1]
     twelve = np.round(video.astype(float) * 4095 / 255).astype(np.uint16)
-    _, cih16 = pyMRAW.save_mraw(twelve[:2], str(tmp_path / "t.cih"), bit_depth=16,
-                                info_dict={"Record Rate(fps)": 4000})  # fmt: skip
+    _, cih16 = pyMRAW.save_mraw(
+        twelve[:2], str(tmp_path / "t.cih"), bit_depth=16, info_dict={"Record Rate(fps)": 4000}
+    )
     cih = _write_12bit(twelve, pathlib.Path(cih16), tmp_path / "clip12.cih")
     text = cih.read_text().replace("Total Frame : 2", f"Total Frame : {len(twelve)}")
     cih.write_text(text)

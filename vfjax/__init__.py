@@ -24,10 +24,18 @@ from . import (  # noqa: E402
 from .cost import nmse  # noqa: E402
 from .diagnosis import Candidate, Diagnosis, diagnose, score_tests  # noqa: E402
 from .fit import FitResult, default_warmup, fit, fit_many, initial_model  # noqa: E402
-from .integrator import DEFAULT_SUBSTEPS, DenseOutput, Simulation, simulate  # noqa: E402
+from ._validate import Constraint, as_parameter  # noqa: E402
+from .integrator import (  # noqa: E402
+    DEFAULT_SUBSTEPS,
+    RESULTS,
+    DenseOutput,
+    Simulation,
+    SimulationError,
+    simulate,
+)
 from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, paper_model, preset  # noqa: E402
-from .recording import Recording, load_recording  # noqa: E402
+from .recording import FRAME_RATE_RANGE_HZ, Recording, load_recording, load_segments  # noqa: E402
 from .subject import Subject  # noqa: E402
 from .terms import (  # noqa: E402
     AbstractForce,
@@ -62,6 +70,12 @@ __all__ = [
     "video",
     "initial_model",
     "DEFAULT_SUBSTEPS",
+    "FRAME_RATE_RANGE_HZ",
+    "RESULTS",
+    "SimulationError",
+    "Constraint",
+    "as_parameter",
+    "load_segments",
     "PRESETS",
     "AbstractForce",
     "AbstractHoldVariability",

@@ -37,7 +37,7 @@ def _poly_slope(c, theta):
     return c[1] + theta * (2.0 * c[2] + theta * 3.0 * c[3])
 
 
-def hermite_root(y0, d0, y1, d1, target, iterations: int = 4):
+def hermite_root(y0, d0, y1, d1, target, iterations: int = 6):
     """Root in [0, 1] of ``hermite(theta) = target``, given a sign change over [0, 1].
 
     Arguments may carry a leading axis to solve several independent problems at once.

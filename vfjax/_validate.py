@@ -1,7 +1,100 @@
-"""Input checks that run on concrete values, outside jit, and stay silent under tracing."""
+"""Checks of parameter values: raised on concrete values (outside jit), and available as a
+traced boolean (inside jit/vmap/grad) for `vfjax.simulate`'s ``invalid_parameters`` result.
+
+A module lists its checks once, as ``constraints`` (a tuple of `Constraint`); the same tuple
+serves both uses, so the messages of a preset, of ``model.set(...)`` and of a loaded file are
+the same.
+"""
+
+import math
+from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+
+
+class Constraint(NamedTuple):
+    """A field's admissible values: finite, and ``low < value`` (``low <= value`` when
+    ``closed_low``) and ``value < high``.
+
+    Attributes:
+        field: the module's field name.
+        label: how messages name it, e.g. "K (stiffness)".
+        low, high: the bounds, in the field's unit.
+        closed_low: whether ``low`` itself is admissible.
+        unit: the unit, for messages.
+    """
+
+    field: str
+    label: str
+    low: float = -math.inf
+    high: float = math.inf
+    closed_low: bool = True
+    unit: str = ""
+
+    def describe(self) -> str:
+        if self.high < math.inf:
+            return f"lie in [{self.low}, {self.high})"
+        if self.low == -math.inf:
+            return "be finite"
+        return f"be {'>=' if self.closed_low else '>'} {self.low:g}"
+
+    def check(self, value) -> None:
+        """Raise ValueError naming the field if a concrete ``value`` is inadmissible."""
+        arr = _concrete(value)
+        if arr is None:
+            return
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{self.label} must be finite, got {_show(arr)}{_u(self.unit)}")
+        if not np.all(self._holds(np, arr)):
+            raise ValueError(
+                f"{self.label} must {self.describe()}, got {_show(arr)}{_u(self.unit)}"
+            )
+
+    def holds(self, value):
+        """Whether ``value`` is admissible, as a traced boolean scalar."""
+        value = jnp.asarray(value)
+        return jnp.all(jnp.isfinite(value) & self._holds(jnp, value))
+
+    def _holds(self, xp, value):
+        above = value >= self.low if self.closed_low else value > self.low
+        return above & (value < self.high)
+
+
+def positive(field: str, label: str, unit: str = "") -> Constraint:
+    """A field that must be finite and > 0."""
+    return Constraint(field, label, 0.0, math.inf, False, unit)
+
+
+def nonnegative(field: str, label: str, unit: str = "") -> Constraint:
+    """A field that must be finite and >= 0."""
+    return Constraint(field, label, 0.0, math.inf, True, unit)
+
+
+def finite(field: str, label: str, unit: str = "") -> Constraint:
+    """A field that must be finite."""
+    return Constraint(field, label, unit=unit)
+
+
+def in_range(field: str, label: str, low: float, high: float, unit: str = "") -> Constraint:
+    """A field that must lie in ``[low, high)``."""
+    return Constraint(field, label, low, high, True, unit)
+
+
+def check_constraints(module) -> None:
+    """Raise ValueError for the first concrete field of ``module`` that breaks its class's
+    ``constraints``; tracers are skipped."""
+    for c in type(module).constraints:
+        c.check(getattr(module, c.field))
+
+
+def constraints_hold(module):
+    """Whether every field of ``module`` meets its class's ``constraints`` (traced bool)."""
+    ok = jnp.asarray(True)
+    for c in type(module).constraints:
+        ok = ok & c.holds(getattr(module, c.field))
+    return ok
 
 
 def _concrete(value):
@@ -16,33 +109,17 @@ def _concrete(value):
 
 def check_finite(name: str, value, unit: str = "") -> None:
     """Raise ValueError naming ``name`` if ``value`` has a NaN or infinity."""
-    arr = _concrete(value)
-    if arr is not None and not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {_show(arr)}{_u(unit)}")
+    finite("value", name, unit).check(value)
 
 
 def check_positive(name: str, value, unit: str = "") -> None:
     """Raise ValueError naming ``name`` unless every element of ``value`` is finite and > 0."""
-    check_finite(name, value, unit)
-    arr = _concrete(value)
-    if arr is not None and not np.all(arr > 0):
-        raise ValueError(f"{name} must be > 0, got {_show(arr)}{_u(unit)}")
+    positive("value", name, unit).check(value)
 
 
 def check_nonnegative(name: str, value, unit: str = "") -> None:
     """Raise ValueError naming ``name`` unless every element of ``value`` is finite and >= 0."""
-    check_finite(name, value, unit)
-    arr = _concrete(value)
-    if arr is not None and not np.all(arr >= 0):
-        raise ValueError(f"{name} must be >= 0, got {_show(arr)}{_u(unit)}")
-
-
-def check_in_range(name: str, value, low: float, high: float, unit: str = "") -> None:
-    """Raise ValueError naming ``name`` unless ``low <= value < high`` elementwise."""
-    check_finite(name, value, unit)
-    arr = _concrete(value)
-    if arr is not None and not np.all((arr >= low) & (arr < high)):
-        raise ValueError(f"{name} must lie in [{low}, {high}), got {_show(arr)}{_u(unit)}")
+    nonnegative("value", name, unit).check(value)
 
 
 def _show(arr: np.ndarray) -> str:
@@ -53,8 +130,8 @@ def _u(unit: str) -> str:
     return f" {unit}" if unit else ""
 
 
-def as_float(value):
-    """Field converter: parameters are float arrays (pytree leaves, never static values)."""
-    import jax.numpy as jnp
-
+def as_parameter(value):
+    """Field converter for a term's parameters: a floating-point array (a pytree leaf that
+    `jax.grad` and `eqx.filter_grad` differentiate). ``jnp.asarray`` would keep an integer
+    ``1`` an integer array, which filters treat as a constant: use this converter instead."""
     return jnp.asarray(value, dtype=float)

@@ -3,6 +3,7 @@
 
 import argparse
 import dataclasses
+import os
 import pathlib
 import sys
 import time
@@ -38,12 +39,20 @@ def cmd_run(args) -> int:
     matplotlib.use("Agg")  # files only, no window
     import matplotlib.pyplot as plt
 
-    from .io import write_simulation
+    from .io import staged_output
+
+    with staged_output(args.out, args.force) as out:
+        code = _run(args, out, plt)
+    if code == 0:
+        print(f"wrote {pathlib.Path(args.out) / 'report.md'} with its figures and tables")
+    return code
+
+
+def _run(args, out, plt) -> int:
+    from .io import save_figure, write_recording, write_simulation, write_text
     from .plotting import plot_gaw
     from .presets import PRESETS
 
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
     rows = []
     for ax, name in zip(axes, PRESETS):
@@ -58,10 +67,12 @@ def cmd_run(args) -> int:
         plot_gaw(sim, ax=ax, title=f"{name}")
         d = _describe(sim, args.fps)
         rows.append((name, d, seconds))
-        print(f"{name}: f0 {d['f0_Hz']:.1f} Hz, area {d['min_area_mm2']:.3f} .. "
-              f"{d['max_area_mm2']:.2f} mm², {seconds:.2f} s")  # fmt: skip
+        print(
+            f"{name}: f0 {d['f0_Hz']:.1f} Hz, area {d['min_area_mm2']:.3f} .. "
+            f"{d['max_area_mm2']:.2f} mm², {seconds:.2f} s"
+        )
     fig.tight_layout()
-    fig.savefig(out / "paper_subjects.png", dpi=120)
+    save_figure(fig, out / "paper_subjects.png", dpi=120)
     plt.close(fig)
     lines = [
         "# vfjax: the paper's four subjects",
@@ -73,14 +84,15 @@ def cmd_run(args) -> int:
         "|---|---|---|---|---|",
     ]
     for name, d, _ in rows:
-        lines.append(f"| {name} | {d['f0_Hz']:.1f} | {d['min_area_mm2']:.3f} | "
-                     f"{d['max_area_mm2']:.2f} | {d['closed_frames']} |")  # fmt: skip
+        lines.append(
+            f"| {name} | {d['f0_Hz']:.1f} | {d['min_area_mm2']:.3f} | "
+            f"{d['max_area_mm2']:.2f} | {d['closed_frames']} |"
+        )
     lines += ["", "![GAWs with phases shaded](paper_subjects.png)", ""]
 
     # Fit: the embedded demo recording (made by vfjax: N3, 2 px noise, arbitrary start).
     from .datasets import demo_recording
     from .fit import initial_model
-    from .io import write_recording
     from .presets import preset
 
     rec = demo_recording()
@@ -115,8 +127,7 @@ def cmd_run(args) -> int:
         + ", ".join(f"{n} {v:.5g}" for n, v in result.params.items())
     )
     lines += _diagnosis_section(out)
-    (out / "report.md").write_text("\n".join(lines))
-    print(f"wrote {out / 'report.md'} with its figures and tables")
+    write_text(out / "report.md", "\n".join(lines))
     return 0
 
 
@@ -125,17 +136,18 @@ def _fit_and_report(recording, model, out, params, iterations, key_seed):
     import matplotlib.pyplot as plt
 
     from .fit import fit
+    from .io import save_figure
     from .plotting import plot_convergence, plot_overlay
 
-    result = fit(model, recording, params=params, iterations=iterations,
-                 key=jax.random.key(key_seed))  # fmt: skip
-    out.mkdir(parents=True, exist_ok=True)
+    result = fit(
+        model, recording, params=params, iterations=iterations, key=jax.random.key(key_seed)
+    )
     result.to_json(out / f"{recording.name}_fit.json")
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 3.4), gridspec_kw={"width_ratios": [2.2, 1]})
     plot_overlay(recording, result, ax=a)
     plot_convergence(result, ax=b)
     fig.tight_layout()
-    fig.savefig(out / f"{recording.name}_fit.png", dpi=120)
+    save_figure(fig, out / f"{recording.name}_fit.png", dpi=120)
     plt.close(fig)
     return result
 
@@ -152,11 +164,14 @@ def _diagnosis_section(out):
     rec = demo_recording("N3", effect=GlottalGap(a_gap=0.008), name_suffix="_gap")
     write_recording(rec, out / f"{rec.name}.csv")
     study = investigate(rec, progress=True)
-    path = write_report(study, rec, out / "diagnosis",
-                        title=f"vfjax diagnosis of the embedded recording {rec.name}")  # fmt: skip
+    path = write_report(
+        study, rec, out / "diagnosis", title=f"vfjax diagnosis of the embedded recording {rec.name}"
+    )
     added = study.added
-    print(f"diagnosis: added {added or 'nothing'}; NMSE {study.first.nmse:.3e} -> "
-          f"{study.final.nmse:.3e}; report {path}")  # fmt: skip
+    print(
+        f"diagnosis: added {added or 'nothing'}; NMSE {study.first.nmse:.3e} -> "
+        f"{study.final.nmse:.3e}; report {path}"
+    )
     values = {n: v for n, v in study.final.params.items() if n not in study.first.params}
     return [
         "## Fit, diagnose, extend: the embedded gap recording",
@@ -179,53 +194,82 @@ def _diagnosis_section(out):
     ]
 
 
+def _load_input(args):
+    """The recording named on the command line: a GAW table with its sidecar, or a contour
+    file (``.txt``, with --fps)."""
+    from .recording import load_contours, load_recording
+
+    path = pathlib.Path(args.recording)
+    if path.suffix.lower() == ".txt":
+        if args.fps is None:
+            raise ValueError(f"{path.name}: a contour file carries no frame rate; give --fps")
+        return load_contours(path, args.fps)
+    rec = load_recording(path)
+    if args.fps is not None and args.fps != rec.fps:
+        raise ValueError(
+            f"--fps {args.fps:g} disagrees with the sidecar of {path.name} "
+            f"({rec.fps:g} Hz): a table's frame rate comes from its sidecar"
+        )
+    return rec
+
+
+def _report_failure(result, what: str) -> int:
+    """Exit code 0 for a trusted fit; else 1, with the reason on stderr."""
+    if not result.failed:
+        return 0
+    print(f"vfjax: {what} {result.status_message()}", file=sys.stderr)
+    return 1
+
+
 def cmd_diagnose(args) -> int:
     """Fit, diagnose, extend (up to --rounds effects) and write the report."""
     import matplotlib
 
     matplotlib.use("Agg")
     from .fit import initial_model
-    from .recording import load_contours, load_recording
+    from .io import staged_output
     from .report import write_report
     from .workflow import investigate
 
-    path = pathlib.Path(args.recording)
-    if path.suffix == ".txt":
-        if not args.fps:
-            raise ValueError(f"{path.name}: a contour file carries no frame rate; give --fps")
-        rec = load_contours(path, args.fps)
-    else:
-        rec = load_recording(path)
+    rec = _load_input(args)
     model = initial_model(rec, template=args.start)
-    study = investigate(rec, model, tuple(args.params), rounds=args.rounds, alpha=args.alpha,
-                        iterations=args.iterations, progress=True)  # fmt: skip
-    out = pathlib.Path(args.out)
-    report = write_report(study, rec, out)
-    study.final.to_json(out / f"{rec.name}_final_fit.json")
+    with staged_output(args.out, args.force) as out:
+        study = investigate(
+            rec,
+            model,
+            tuple(args.params),
+            rounds=args.rounds,
+            alpha=args.alpha,
+            iterations=args.iterations,
+            progress=True,
+        )
+        write_report(study, rec, out)
+        study.final.to_json(out / f"{rec.name}_final_fit.json")
     print(f"{rec.name}: {study.rounds[-1].diagnosis.verdict}")
-    print(f"wrote {report} and its figures")
-    return 0
+    print(f"wrote {pathlib.Path(args.out) / 'report.md'} and its figures")
+    return _report_failure(study.final, f"{rec.name}: the final fit")
 
 
 def cmd_fit(args) -> int:
-    """Fit the paper's model to a recording (table + JSON sidecar)."""
+    """Fit the paper's model to a recording (table + JSON sidecar, or a contour file)."""
     import matplotlib
 
     matplotlib.use("Agg")
     from .fit import initial_model
-    from .recording import load_recording
+    from .io import staged_output
 
-    rec = load_recording(args.recording)
+    rec = _load_input(args)
     model = initial_model(rec, template=args.start)
-    out = pathlib.Path(args.out)
-    result = _fit_and_report(rec, model, out, tuple(args.params), args.iterations, args.seed)
+    with staged_output(args.out, args.force) as out:
+        result = _fit_and_report(rec, model, out, tuple(args.params), args.iterations, args.seed)
     units = result.units
     print(
-        f"{rec.name}: NMSE {result.nmse:.3e} ({result.optimistix_result}); "
+        f"{rec.name}: NMSE {result.nmse:.3e} ({result.status}); "
         + ", ".join(f"{n} = {v:.6g} {units[n]}" for n, v in result.params.items())
     )
+    out = pathlib.Path(args.out)
     print(f"wrote {out / (rec.name + '_fit.json')} and {out / (rec.name + '_fit.png')}")
-    return 0
+    return _report_failure(result, f"{rec.name}: the fit")
 
 
 def cmd_extract(args) -> int:
@@ -235,15 +279,18 @@ def cmd_extract(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .io import write_recording
+    from .io import check_output_file, save_figure, write_recording
     from .segmentation import frames_to_recording
     from .video import read_video
 
+    table = check_output_file(args.output, args.force)
+    preview = table.with_suffix(".png")
+    for extra in (table.with_suffix(".json"), preview):
+        check_output_file(extra, args.force)
     video, file_fps = read_video(args.video)
-    rec = frames_to_recording(video, args.fps or file_fps, source=args.video, progress=True)
-    out = write_recording(
-        dataclasses.replace(rec, masks=None), args.output
-    )  # masks go in the figure, not the table
+    rec = frames_to_recording(video, args.fps, source=args.video, file_fps=file_fps, progress=True)
+    # masks go in the figure, not the table
+    out = write_recording(dataclasses.replace(rec, masks=None), table)
     i = int(np.argmax(rec.area))
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.6), gridspec_kw={"width_ratios": [1, 2.2]})
     a.imshow(video[i], cmap="gray")
@@ -255,24 +302,28 @@ def cmd_extract(args) -> int:
     b.set_ylabel("glottal area (px)")
     b.set_title(rec.name)
     fig.tight_layout()
-    preview = pathlib.Path(args.output).with_suffix(".png")
-    fig.savefig(preview, dpi=120)
+    save_figure(fig, preview, dpi=120)
     plt.close(fig)
-    print(f"wrote {out}, its .json sidecar and {preview} ({rec.n_frames} frames, "
-          f"peak area {rec.area.max():.0f} px)")  # fmt: skip
+    print(
+        f"wrote {out}, its .json sidecar and {preview} ({rec.n_frames} frames, "
+        f"peak area {rec.area.max():.0f} px)"
+    )
     return 0
 
 
 def cmd_simulate(args) -> int:
     """One preset's GAW as CSV + sidecar."""
-    from .io import write_simulation
+    from .io import check_output_file, write_simulation
     from .presets import PRESETS
+    from .recording import check_frame_rate
 
+    path = check_output_file(args.output, args.force)
+    check_output_file(path.with_suffix(".json"), args.force)
+    check_frame_rate(args.fps, "--fps")
     sim = _simulate_preset(args.preset, args.fps, args.frames, args.t_start)
-    path = write_simulation(sim, args.output, metadata={"subject": args.preset,
-                                                        **PRESETS[args.preset]})  # fmt: skip
-    print(f"wrote {path} ({args.frames} frames, diverged={bool(sim.diverged)})")
-    return 0 if bool(sim.complete) else 1
+    path = write_simulation(sim, path, metadata={"subject": args.preset, **PRESETS[args.preset]})
+    print(f"wrote {path} ({args.frames} frames)")
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -285,10 +336,16 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--fps", type=float, default=4000.0, help="frame rate, Hz")
     run.add_argument("--frames", type=int, default=201, help="number of frames")
     run.add_argument("--t-start", type=float, default=0.2, help="sampling start, s (after onset)")
+    run.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     run.set_defaults(func=cmd_run)
 
     f = sub.add_parser("fit", help="fit the paper's model to a recording (CSV/TSV + sidecar)")
-    f.add_argument("recording", help="GAW table; its sidecar is the same path with .json")
+    f.add_argument(
+        "recording",
+        help="GAW table (its sidecar is the same path with .json), or a "
+        "*_segdata.txt contour file (with --fps)",
+    )
+    f.add_argument("--fps", type=float, help="frame rate, Hz (contour files)")
     f.add_argument("--out", default="vfjax_output", help="output folder (default: %(default)s)")
     f.add_argument(
         "--params",
@@ -296,29 +353,44 @@ def build_parser() -> argparse.ArgumentParser:
         default=["S", "K", "C_f", "t_c"],
         help="parameters to fit (default: %(default)s; the paper fitted S, K, C_f)",
     )
-    f.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from "
-                   "(default: N1 for male or unknown, N3 for female)")  # fmt: skip
+    f.add_argument(
+        "--start",
+        choices=["N1", "N2", "N3", "N4"],
+        help="preset to start from (default: N1 for male or unknown, N3 for female)",
+    )
     f.add_argument("--iterations", type=int, default=60, help="PSO iterations")
     f.add_argument("--seed", type=int, default=0, help="PRNG seed")
+    f.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     f.set_defaults(func=cmd_fit)
 
     dg = sub.add_parser("diagnose", help="fit, find the missing effect, extend, write a report")
-    dg.add_argument("recording", help="GAW table + .json sidecar, or a *_segdata.txt contour "
-                    "file (with --fps)")  # fmt: skip
+    dg.add_argument(
+        "recording", help="GAW table + .json sidecar, or a *_segdata.txt contour file (with --fps)"
+    )
     dg.add_argument("--out", default="vfjax_diagnosis", help="report folder (default: %(default)s)")
     dg.add_argument("--fps", type=float, help="frame rate, Hz (contour files)")
-    dg.add_argument("--params", nargs="+", default=["S", "K", "C_f", "t_c"],
-                    help="parameters of the first fit (default: %(default)s)")  # fmt: skip
+    dg.add_argument(
+        "--params",
+        nargs="+",
+        default=["S", "K", "C_f", "t_c"],
+        help="parameters of the first fit (default: %(default)s)",
+    )
     dg.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from")
     dg.add_argument("--rounds", type=int, default=2, help="most effects to add (default: 2)")
     dg.add_argument("--alpha", type=float, default=0.01, help="significance level")
     dg.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+    dg.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     dg.set_defaults(func=cmd_diagnose)
 
     ex = sub.add_parser("extract", help="glottal area waveform from a high-speed video")
     ex.add_argument("video", help=".tif/.tiff, .npy, .cih/.cihx (+.mraw), .avi or .mp4")
     ex.add_argument("-o", "--output", default="recording.csv", help="CSV path (+ .json, .png)")
-    ex.add_argument("--fps", type=float, help="frame rate, Hz (when the file does not say)")
+    ex.add_argument(
+        "--fps",
+        type=float,
+        help="the camera's frame rate, Hz (when the file does not say, or says a playback rate)",
+    )
+    ex.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     ex.set_defaults(func=cmd_extract)
 
     sim = sub.add_parser("simulate", help="simulate one preset and write its GAW")
@@ -327,15 +399,29 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--fps", type=float, default=4000.0)
     sim.add_argument("--frames", type=int, default=201)
     sim.add_argument("--t-start", type=float, default=0.0)
+    sim.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     sim.set_defaults(func=cmd_simulate)
     return p
 
 
 def main(argv=None) -> int:
+    """Run the command line; returns the exit code: 0 done, 1 the fit or simulation failed
+    (the reason on stderr), 2 bad input or arguments, 130 interrupted (Ctrl-C)."""
     args = build_parser().parse_args(argv)
+    from .integrator import SimulationError
+
     try:
         return args.func(args)
-    except (ValueError, TypeError, FileNotFoundError) as err:
+    except KeyboardInterrupt:
+        # no traceback, and no interpreter teardown under JAX's threads (which can crash)
+        print("vfjax: interrupted; the output folder is left as it was", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    except SimulationError as err:
+        print(f"vfjax: simulation failed: {err}", file=sys.stderr)
+        return 1
+    except (ValueError, TypeError, OSError) as err:
         print(f"vfjax: error: {err}", file=sys.stderr)
         return 2
 

@@ -57,8 +57,14 @@ class Comparison:
         rows = []
         for attr, label, unit, _ in TABLE:
             unit = self.unit if unit == "unit" else unit
-            rows.append((label, getattr(self.measured_descriptors, attr),
-                         getattr(self.simulated_descriptors, attr), unit))  # fmt: skip
+            rows.append(
+                (
+                    label,
+                    getattr(self.measured_descriptors, attr),
+                    getattr(self.simulated_descriptors, attr),
+                    unit,
+                )
+            )
         return rows
 
     def failures(self) -> list[str]:
@@ -74,8 +80,10 @@ def compare(result: FitResult, recording: Recording) -> Comparison:
     phase = np.asarray(sim.phase)
     residual = measured - simulated
     total = float(np.sum(residual**2))
-    error_share = {name: float(np.sum(residual[phase == code] ** 2) / total) if total else 0.0
-                   for code, name in enumerate(PHASE_NAMES)}  # fmt: skip
+    error_share = {
+        name: float(np.sum(residual[phase == code] ** 2) / total) if total else 0.0
+        for code, name in enumerate(PHASE_NAMES)
+    }
     time_share = {name: float(np.mean(phase == code)) for code, name in enumerate(PHASE_NAMES)}
     return Comparison(
         time=recording.time,
@@ -128,20 +136,32 @@ def _failures(c: Comparison) -> list[str]:
         in_phase = c.phase == code
         rms = float(np.sqrt(np.mean(c.residual[in_phase] ** 2))) if in_phase.any() else 0.0
         if share > 0.25 and share > 1.5 * c.time_share[name] and rms > visible:
-            found.append((share, f"{name} phase: {100 * share:.0f} % of the squared error in "
-                                 f"{100 * c.time_share[name]:.0f} % of the frames"))  # fmt: skip
+            found.append(
+                (
+                    share,
+                    f"{name} phase: {100 * share:.0f} % of the squared error in "
+                    f"{100 * c.time_share[name]:.0f} % of the frames",
+                )
+            )
     m, s = c.measured_descriptors, c.simulated_descriptors
     closed = c.phase == CLOSED
     if closed.any():
         floor = float(np.median(c.measured[closed]))
         model_floor = float(np.median(c.simulated[closed]))
         if floor - model_floor > 0.02 * peak:
-            model_words = ("the model closes fully" if model_floor <= 0.005 * peak
-                           else f"the model's is {_fmt(model_floor, c.unit)}")  # fmt: skip
-            found.append(((floor - model_floor) / peak,
-                          f"closed phase: the measured area never falls below "
-                          f"{_fmt(float(np.min(c.measured[closed])), c.unit)} (median "
-                          f"{_fmt(floor, c.unit)}), {model_words}"))  # fmt: skip
+            model_words = (
+                "the model closes fully"
+                if model_floor <= 0.005 * peak
+                else f"the model's is {_fmt(model_floor, c.unit)}"
+            )
+            found.append(
+                (
+                    (floor - model_floor) / peak,
+                    f"closed phase: the measured area never falls below "
+                    f"{_fmt(float(np.min(c.measured[closed])), c.unit)} (median "
+                    f"{_fmt(floor, c.unit)}), {model_words}",
+                )
+            )
     for attr, label, unit, tol in TABLE:
         a, b = getattr(m, attr), getattr(s, attr)
         if not (np.isfinite(a) and np.isfinite(b)):
@@ -155,11 +175,14 @@ def _failures(c: Comparison) -> list[str]:
             miss = abs(a - b) > tol * max(abs(a), 1e-12)
         if miss:
             rel = abs(a - b) / max(abs(a), 1e-12)
-            found.append((min(rel, 1.0),
-                          f"{label}: measured {_fmt(a, unit)}, model {_fmt(b, unit)}"))  # fmt: skip
+            found.append(
+                (min(rel, 1.0), f"{label}: measured {_fmt(a, unit)}, model {_fmt(b, unit)}")
+            )
     if not found:
-        return [f"no clear failure: NMSE {100 * c.nmse:.2f} %, residual at the noise level "
-                f"({_fmt(sigma, c.unit)}), descriptors within tolerance"]  # fmt: skip
+        return [
+            f"no clear failure: NMSE {100 * c.nmse:.2f} %, residual at the noise level "
+            f"({_fmt(sigma, c.unit)}), descriptors within tolerance"
+        ]
     found.sort(key=lambda w: -w[0])
     return [text for _, text in found]
 
@@ -187,10 +210,16 @@ def plot_comparison(c: Comparison, title: str = ""):
         ax.margins(x=0)
     names = list(c.error_share)
     x = np.arange(len(names))
-    axes[2].bar(x - 0.2, [c.error_share[n] for n in names], 0.4, label="share of squared error",
-                color="#e63946")  # fmt: skip
-    axes[2].bar(x + 0.2, [c.time_share[n] for n in names], 0.4, label="share of frames",
-                color="#adb5bd")  # fmt: skip
+    axes[2].bar(
+        x - 0.2,
+        [c.error_share[n] for n in names],
+        0.4,
+        label="share of squared error",
+        color="#e63946",
+    )
+    axes[2].bar(
+        x + 0.2, [c.time_share[n] for n in names], 0.4, label="share of frames", color="#adb5bd"
+    )
     axes[2].set_xticks(x, names)
     axes[2].legend(fontsize=7, frameon=False)
     fig.tight_layout()

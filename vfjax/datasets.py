@@ -49,8 +49,13 @@ def demo_recording(
     rng = np.random.default_rng(seed)
     area = np.asarray(sim.area) + rng.normal(0.0, noise_px, n_frames)
     area = np.clip(np.round(area), 0.0, None)
-    meta = {"sex": "male" if name in ("N1", "N2") else "female", "source": "vfjax demo",
-            "subject": name, "noise_px": noise_px, "seed": seed,
-            "hidden_effect": None if effect is None else type(effect).__name__,
-            "closure_jitter_rel": jitter}  # fmt: skip
+    meta = {
+        "sex": "male" if name in ("N1", "N2") else "female",
+        "source": "vfjax demo",
+        "subject": name,
+        "noise_px": noise_px,
+        "seed": seed,
+        "hidden_effect": None if effect is None else type(effect).__name__,
+        "closure_jitter_rel": jitter,
+    }
     return Recording(area=area, fps=fps, unit="px", metadata=meta, name=f"demo_{name}{name_suffix}")

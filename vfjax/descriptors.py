@@ -29,6 +29,7 @@ dA/dt is the central difference of the frames. Quotients are means over the comp
 """
 
 import dataclasses
+import math
 import warnings
 
 import numpy as np
@@ -61,6 +62,32 @@ def cycle_starts(area, fps: float, level: float = 0.5) -> np.ndarray:
     i = np.nonzero((area[:-1] < thr) & (area[1:] >= thr))[0]
     frac = (thr - area[i]) / (area[i + 1] - area[i])
     return (i + frac) / fps
+
+
+def periodicity(area, fps: float, f0_range=(50.0, 1000.0)) -> tuple[float, float]:
+    """How periodic a waveform is: the largest normalised autocorrelation over the lags of a
+    glottal period (``f0_range``, Hz), and that lag (s).
+
+    A vibrating glottis gives 0.95 or more (the shared real and synthetic recordings: 0.97 to
+    1.0); white noise of 100 frames about 0.3 to 0.45. Lags are kept to at most half the
+    recording, so every correlation spans half of it or more. Returns (0, nan) for a
+    constant waveform or one too short to hold two periods.
+    """
+    a = _as_waveform(area, fps)
+    a = a - a.mean()
+    n = a.size
+    lo = max(1, int(math.floor(fps / f0_range[1])))
+    hi = min(n // 2, int(math.ceil(fps / f0_range[0])))
+    if hi < lo or not np.any(a):
+        return 0.0, float("nan")
+    best, lag = -1.0, lo
+    for k in range(lo, hi + 1):
+        x, y = a[:-k], a[k:]
+        denom = math.sqrt(float(np.dot(x, x)) * float(np.dot(y, y)))
+        r = float(np.dot(x, y)) / denom if denom > 0 else 0.0
+        if r > best:
+            best, lag = r, k
+    return best, lag / fps
 
 
 def fundamental_frequency(area, fps: float) -> float:
@@ -110,8 +137,10 @@ def detect_cycles(area, fps: float, level: float = 0.05) -> list[Cycle]:
     rate = np.gradient(a) * fps
     cycles = []
     # each cycle: from the minimum before one rising edge to the minimum before the next
-    lows = [int(np.argmin(a[(mids[k - 1] if k else 0) : mids[k] + 1])) + (mids[k - 1] if k else 0)
-            for k in range(len(mids))]  # fmt: skip
+    lows = [
+        int(np.argmin(a[(mids[k - 1] if k else 0) : mids[k] + 1])) + (mids[k - 1] if k else 0)
+        for k in range(len(mids))
+    ]
     openings = []
     for k in range(len(mids)):
         lo_i = lows[k]
@@ -134,11 +163,17 @@ def detect_cycles(area, fps: float, level: float = 0.05) -> list[Cycle]:
         while j < hi_i and a[j + 1] > thr:
             j += 1
         closing = _fall(a, j, thr) if j < hi_i and a[j] != a[j + 1] else float(j)
-        cycles.append(Cycle(
-            opening=openings[k] / fps, peak=peak / fps, closing=closing / fps,
-            end=openings[k + 1] / fps, minimum=float(seg.min()), maximum=float(a[p]),
-            madr=float(max(0.0, -rate[p : hi_i + 1].min())),
-        ))  # fmt: skip
+        cycles.append(
+            Cycle(
+                opening=openings[k] / fps,
+                peak=peak / fps,
+                closing=closing / fps,
+                end=openings[k + 1] / fps,
+                minimum=float(seg.min()),
+                maximum=float(a[p]),
+                madr=float(max(0.0, -rate[p : hi_i + 1].min())),
+            )
+        )
     return cycles
 
 

@@ -73,8 +73,14 @@ from .terms.paper import ClosureHold, FlowSeparation
 CONFIRM = (64, 100)
 #: The candidates tried by default, in this order (those already active in the model are
 #: skipped; FlowSeparation and ClosureHold only when absent or switched off).
-DEFAULT_CANDIDATES = (GlottalGap, CubicStiffness, PressureModulation, MucosalDelay,
-                      FlowSeparation, ClosureHold)  # fmt: skip
+DEFAULT_CANDIDATES = (
+    GlottalGap,
+    CubicStiffness,
+    PressureModulation,
+    MucosalDelay,
+    FlowSeparation,
+    ClosureHold,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,8 +116,10 @@ class Candidate:
         if not (isinstance(kind, type) and issubclass(kind, AbstractTerm)):
             raise TypeError(f"a candidate effect must be a vfjax term, got {effect!r}")
         if not kind.off_values:
-            raise ValueError(f"{kind.__name__} declares no off_values: the diagnosis needs the "
-                             "parameter values that switch it off")  # fmt: skip
+            raise ValueError(
+                f"{kind.__name__} declares no off_values: the diagnosis needs the "
+                "parameter values that switch it off"
+            )
         term = kind(**kind.off_values) if isinstance(effect, type) else effect
         for name, value in kind.off_values.items():
             field = kind.parameters[name][0]
@@ -155,8 +163,7 @@ def default_candidates(model) -> list[Candidate]:
 
 def _is_off(term) -> bool:
     kind = type(term)
-    return all(float(getattr(term, kind.parameters[n][0])) == v
-               for n, v in kind.off_values.items())  # fmt: skip
+    return all(float(getattr(term, kind.parameters[n][0])) == v for n, v in kind.off_values.items())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -276,14 +283,23 @@ class Diagnosis:
         for rank, name in enumerate(self.ranking, 1):
             s = self.scores[name]
             f = self.refits.get(name)
-            rows.append({
-                "rank": rank, "effect": name, "statistic": s.statistic, "dof": s.dof,
-                "p_value": s.p_value, "one_sided": s.one_sided,
-                "nmse_after": f.nmse if f else None, "fall": f.fall if f else None,
-                "refit_p_value": f.p_value if f else None,
-                "evidence": _evidence(s, f), "significant": _evidence(s, f) < self.level,
-                "values": f.values if f else {}, "needed": name in self.needed,
-            })  # fmt: skip
+            rows.append(
+                {
+                    "rank": rank,
+                    "effect": name,
+                    "statistic": s.statistic,
+                    "dof": s.dof,
+                    "p_value": s.p_value,
+                    "one_sided": s.one_sided,
+                    "nmse_after": f.nmse if f else None,
+                    "fall": f.fall if f else None,
+                    "refit_p_value": f.p_value if f else None,
+                    "evidence": _evidence(s, f),
+                    "significant": _evidence(s, f) < self.level,
+                    "values": f.values if f else {},
+                    "needed": name in self.needed,
+                }
+            )
         return rows
 
 
@@ -299,16 +315,25 @@ class _Sampler(eqx.Module):
 
     def gaw(self, model, shift):
         """The GAW; differentiable in forward mode (`jax.jacfwd`) only."""
-        sim = simulate(model, self.fps, self.n_frames, substeps=self.substeps,
-                       t_start=self.warmup, time_shift=shift, max_time_shift=self.max_time_shift,
-                       reverse_mode=False)  # fmt: skip
+        sim = simulate(
+            model,
+            self.fps,
+            self.n_frames,
+            substeps=self.substeps,
+            t_start=self.warmup,
+            time_shift=shift,
+            max_time_shift=self.max_time_shift,
+            reverse_mode=False,
+            throw=False,
+        )
         return jnp.maximum(sim.area, 0.0)
 
 
 def _sampler(result: FitResult, recording: Recording) -> _Sampler:
     s = result.settings
-    return _Sampler(recording.fps, recording.n_frames, s["substeps"], s["warmup"],
-                    s["max_time_shift"])  # fmt: skip
+    return _Sampler(
+        recording.fps, recording.n_frames, s["substeps"], s["warmup"], s["max_time_shift"]
+    )
 
 
 @eqx.filter_jit
@@ -389,14 +414,18 @@ def score_tests(
     cands = _as_candidates(result.model, candidates)
     sampler = _sampler(result, recording)
     names = tuple(result.params)
-    g0, jf = (np.asarray(a) for a in _fitted_columns(sampler, result.model, names,
-                                                     jnp.asarray(result.time_shift)))  # fmt: skip
+    g0, jf = (
+        np.asarray(a)
+        for a in _fitted_columns(sampler, result.model, names, jnp.asarray(result.time_shift))
+    )
     r = np.asarray(recording.area, dtype=float) - g0
     q, _ = np.linalg.qr(jf)
     bandwidth = _bandwidth(recording)
     columns = _candidate_columns(result, sampler, cands)
-    return [_candidate_score(c, cols, r, q, jf.shape[1], variance, bandwidth)
-            for c, cols in zip(cands, columns)]  # fmt: skip
+    return [
+        _candidate_score(c, cols, r, q, jf.shape[1], variance, bandwidth)
+        for c, cols in zip(cands, columns)
+    ]
 
 
 def _extended(model, cands):
@@ -427,8 +456,11 @@ def _candidate_columns(result, sampler, cands) -> list[np.ndarray]:
         rows.append(slice(len(variants), len(variants) + len(settings)))
         variants += [wide.set(**setting) for setting in settings]
         points += [[at[n] for n in tested]] * len(settings)
-    cols = np.asarray(_effect_columns(sampler, _stack(variants), tested, jnp.asarray(points),
-                                      jnp.asarray(result.time_shift)))  # fmt: skip
+    cols = np.asarray(
+        _effect_columns(
+            sampler, _stack(variants), tested, jnp.asarray(points), jnp.asarray(result.time_shift)
+        )
+    )
     return [cols[r][:, :, [tested.index(n) for n in c.tested]] for c, r in zip(cands, rows)]
 
 
@@ -464,8 +496,17 @@ def _candidate_score(cand, cols, r, q, n_fitted, variance, bandwidth):
         statistic, p = lm, float(stats.chi2.sf(lm, cand.dof))
     p = min(1.0, p * len(cand.grid))
     direction = int(np.sign(step[0])) if step.size == 1 else 0
-    return EffectScore(cand.name, cand.tested, statistic, cand.dof, p, direction,
-                       cand.one_sided, explained, estimates)  # fmt: skip
+    return EffectScore(
+        cand.name,
+        cand.tested,
+        statistic,
+        cand.dof,
+        p,
+        direction,
+        cand.one_sided,
+        explained,
+        estimates,
+    )
 
 
 def _estimate(cand, step, setting):
@@ -495,8 +536,9 @@ def _as_candidates(model, candidates):
     if candidates is None:
         return default_candidates(model)
     out = [c if isinstance(c, Candidate) else Candidate.of(c) for c in candidates]
-    present = [c.name for c in out
-               if model.has(type(c.term)) and not _is_off(model.term(type(c.term)))]  # fmt: skip
+    present = [
+        c.name for c in out if model.has(type(c.term)) and not _is_off(model.term(type(c.term)))
+    ]
     if present:
         raise ValueError(f"{present} already active in the fitted model: nothing to test")
     return out
@@ -530,11 +572,15 @@ def _starts(
         # parameters one range-scale step off
         phases = [k for k in cand.directions[0] if all(k in d for d in cand.directions)]
         lattice = [
-            {**ests[0], **g, **{t: cand.point[t] + _range(t)[2] for t in cand.tested},
-             **{k: _wrap(cand.directions[0][k] + a) for k in phases}}
+            {
+                **ests[0],
+                **g,
+                **{t: cand.point[t] + _range(t)[2] for t in cand.tested},
+                **{k: _wrap(cand.directions[0][k] + a) for k in phases},
+            }
             for g in (cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, 4))
             for a in ((0.0, 2.1, -2.1) if phases else (0.0,))
-        ]  # fmt: skip
+        ]
         if anchor:
             lattice = [{**p, **anchor} if i % 2 else p for i, p in enumerate(lattice)]
         ests += lattice
@@ -592,9 +638,16 @@ def refit_with(
     it) and of the starts' values; then LM. `refit_each` runs several candidates' refits as
     one batch.
     """
-    return refit_each(result, recording, [(candidate, starts)], iterations=iterations,
-                      swarm_size=swarm_size, lm_steps=lm_steps, box=box,
-                      anchor=anchor)[0]  # fmt: skip
+    return refit_each(
+        result,
+        recording,
+        [(candidate, starts)],
+        iterations=iterations,
+        swarm_size=swarm_size,
+        lm_steps=lm_steps,
+        box=box,
+        anchor=anchor,
+    )[0]
 
 
 def refit_each(
@@ -618,15 +671,27 @@ def refit_each(
     model carries its own candidate only. If the candidates' parameter names clash, each job
     runs as its own batch. ``warmup`` (s) defaults to the fit's.
     """
-    cands = [None if c is None else c if isinstance(c, Candidate) else Candidate.of(c)
-             for c, _ in jobs]  # fmt: skip
+    cands = [
+        None if c is None else c if isinstance(c, Candidate) else Candidate.of(c) for c, _ in jobs
+    ]
     names = tuple(result.params)
     own = [names + (() if c is None else c.tested + c.extra) for c in cands]
     wide = _extended(result.model, [c for c in cands if c is not None])
     if wide is None:
-        return [refit_each(result, recording, [job], iterations=iterations,
-                           swarm_size=swarm_size, lm_steps=lm_steps, box=box, anchor=anchor,
-                           warmup=warmup)[0] for job in jobs]  # fmt: skip
+        return [
+            refit_each(
+                result,
+                recording,
+                [job],
+                iterations=iterations,
+                swarm_size=swarm_size,
+                lm_steps=lm_steps,
+                box=box,
+                anchor=anchor,
+                warmup=warmup,
+            )[0]
+            for job in jobs
+        ]
     added = [type(t) for t in wide.terms if not result.model.has(type(t))]
     union = tuple(dict.fromkeys(n for o in own for n in o))
     models, holds, owner = [], [], []
@@ -642,10 +707,18 @@ def refit_each(
             given = [v, anchor.get(n, v)] + [s[n] for _, ss in jobs for s in ss if s.get(n, 0) > 0]
             bounds[n] = (min(given) / box, max(given) * box)
     s = result.settings
-    fits = fit_many(models, [recording] * len(models), params=union, iterations=iterations,
-                    swarm_size=swarm_size, lm_steps=lm_steps,
-                    warmup=s["warmup"] if warmup is None else warmup,
-                    substeps=s["substeps"], bounds=bounds, hold=holds)  # fmt: skip
+    fits = fit_many(
+        models,
+        [recording] * len(models),
+        params=union,
+        iterations=iterations,
+        swarm_size=swarm_size,
+        lm_steps=lm_steps,
+        warmup=s["warmup"] if warmup is None else warmup,
+        substeps=s["substeps"],
+        bounds=bounds,
+        hold=holds,
+    )
     best = []
     for j, c in enumerate(cands):
         mine = [f for f, o in zip(fits, owner) if o == j]
@@ -675,8 +748,10 @@ def effective_frames(residual: np.ndarray, bandwidth: int) -> float:
     n, c0 = r.size, float(r @ r)
     if c0 == 0:
         return float(n)
-    ratio = 1.0 + 2.0 * sum((1.0 - lag / (bandwidth + 1.0)) * float(r[lag:] @ r[:-lag]) / c0
-                            for lag in range(1, min(bandwidth, n - 1) + 1))  # fmt: skip
+    ratio = 1.0 + 2.0 * sum(
+        (1.0 - lag / (bandwidth + 1.0)) * float(r[lag:] @ r[:-lag]) / c0
+        for lag in range(1, min(bandwidth, n - 1) + 1)
+    )
     return float(np.clip(n / max(ratio, 1e-12), n / (bandwidth + 1.0), n))
 
 
@@ -736,8 +811,9 @@ def diagnose(
     if confirm is not None and (
         len(confirm) != 2 or any(not isinstance(c, int) or c < 1 for c in confirm)
     ):
-        raise ValueError(f"confirm must be (particles, iterations), positive integers, or None; "
-                         f"got {confirm!r}")  # fmt: skip
+        raise ValueError(
+            f"confirm must be (particles, iterations), positive integers, or None; got {confirm!r}"
+        )
     cands = _as_candidates(result.model, candidates)
     if not cands:
         raise ValueError("no candidate effect to test: every one is already in the model")
@@ -756,11 +832,13 @@ def diagnose(
             model = result.model.with_term(cand.term)
             begin = _starts(cand, model, recording, score, starts, anchor)
             jobs.append((cand, begin + [{**begin[0], **a} for a in anchored]))
-        control, *fitted_each = refit_each(result, recording, jobs, iterations=iterations,
-                                           anchor=anchor)  # fmt: skip
+        control, *fitted_each = refit_each(
+            result, recording, jobs, iterations=iterations, anchor=anchor
+        )
         if confirm is not None:
-            control, fitted_each = _confirm(result, recording, jobs, control, fitted_each,
-                                            confirm, anchor, iterations, min_fall)  # fmt: skip
+            control, fitted_each = _confirm(
+                result, recording, jobs, control, fitted_each, confirm, anchor, iterations, min_fall
+            )
         reference = min(result.nmse, control.nmse)
         if progress:
             print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
@@ -769,12 +847,19 @@ def diagnose(
         for cand, score, fitted in zip(cands, scores, fitted_each):
             values = {n: fitted.params[n] for n in cand.tested + cand.extra}
             fall = 1.0 - fitted.nmse / reference if reference > 0 else 0.0
-            p = _refit_p_value(reference * sse_scale, fitted.nmse * sse_scale, n_eff,
-                               len(result.params) + 1, len(values))  # fmt: skip
+            p = _refit_p_value(
+                reference * sse_scale,
+                fitted.nmse * sse_scale,
+                n_eff,
+                len(result.params) + 1,
+                len(values),
+            )
             refits[cand.name] = EffectRefit(cand.name, fitted, fitted.nmse, fall, values, p)
             if progress:
-                print(f"{cand.name}: score p = {score.p_value:.2g}, NMSE {reference:.4g} -> "
-                      f"{fitted.nmse:.4g} (refit p = {p:.2g})")  # fmt: skip
+                print(
+                    f"{cand.name}: score p = {score.p_value:.2g}, NMSE {reference:.4g} -> "
+                    f"{fitted.nmse:.4g} (refit p = {p:.2g})"
+                )
         ranking = sorted(by_name, key=lambda n: (refits[n].nmse, by_name[n].p_value))
     else:
         ranking = sorted(by_name, key=lambda n: (by_name[n].p_value, -by_name[n].statistic))
@@ -796,9 +881,22 @@ def diagnose(
         return f.fall >= min_fall and reference - f.nmse >= noise_multiple * noise_nmse
 
     needed = [n for n in ranking if is_needed(n)]
-    diag = Diagnosis(result, recording.name, comparison, by_name, refits, control, ranking,
-                     needed, alpha, level, min_fall, noise_multiple, noise_nmse,
-                     "")  # fmt: skip
+    diag = Diagnosis(
+        result,
+        recording.name,
+        comparison,
+        by_name,
+        refits,
+        control,
+        ranking,
+        needed,
+        alpha,
+        level,
+        min_fall,
+        noise_multiple,
+        noise_nmse,
+        "",
+    )
     return dataclasses.replace(diag, verdict=_verdict(diag))
 
 
@@ -833,8 +931,14 @@ def _confirm(result, recording, jobs, control, fitted, confirm, anchor, iteratio
     warmup = max(result.settings["warmup"], float(type(cand.term).min_warmup))
     quick = (control, fitted[top])
     if warmup > result.settings["warmup"]:
-        quick = refit_each(result, recording, [jobs[0], jobs[1 + top]], iterations=iterations,
-                           anchor=anchor, warmup=warmup)  # fmt: skip
+        quick = refit_each(
+            result,
+            recording,
+            [jobs[0], jobs[1 + top]],
+            iterations=iterations,
+            anchor=anchor,
+            warmup=warmup,
+        )
 
     def from_anchor(starts):
         return [s for s in starts if anchor and all(s.get(k) == v for k, v in anchor.items())]
@@ -843,8 +947,15 @@ def _confirm(result, recording, jobs, control, fitted, confirm, anchor, iteratio
         (None, [dict(quick[0].params)] + from_anchor(control_starts)),
         (cand, [dict(quick[1].params)] + (from_anchor(cand_starts) or cand_starts[-1:])),
     ]
-    c, f = refit_each(result, recording, deep, iterations=deep_iterations,
-                      swarm_size=swarm_size, anchor=anchor, warmup=warmup)  # fmt: skip
+    c, f = refit_each(
+        result,
+        recording,
+        deep,
+        iterations=deep_iterations,
+        swarm_size=swarm_size,
+        anchor=anchor,
+        warmup=warmup,
+    )
     fitted = list(fitted)
     fitted[top] = min(fitted[top], quick[1], f, key=_error)
     return min(control, quick[0], c, key=_error), fitted
@@ -867,40 +978,57 @@ def _verdict(d: Diagnosis) -> str:
     floor = f"noise floor about {d.noise_nmse:.3%}"
     lines = []
     if d.control is not None and d.control.nmse < 0.8 * d.result.nmse:
-        lines.append(f"The fit was not the best the model can do: a refit without any effect "
-                     f"reaches NMSE {d.control.nmse:.3%} (was {d.result.nmse:.3%})")  # fmt: skip
+        lines.append(
+            f"The fit was not the best the model can do: a refit without any effect "
+            f"reaches NMSE {d.control.nmse:.3%} (was {d.result.nmse:.3%})"
+        )
     if d.best is not None:
         f = d.refits.get(d.best)
         text = f"{d.best} is missing (evidence p = {_evidence(d.scores[d.best], f):.2g})"
         if f is not None:
             values = ", ".join(f"{k} = {v:.4g}" for k, v in f.values.items())
-            text += (f": adding it lowers the NMSE from {before:.3%} to {f.nmse:.3%} "
-                     f"({f.fall:.0%} of the squared error; {values})")  # fmt: skip
+            text += (
+                f": adding it lowers the NMSE from {before:.3%} to {f.nmse:.3%} "
+                f"({f.fall:.0%} of the squared error; {values})"
+            )
             if f.nmse > 2.0 * d.noise_nmse and f.nmse > 0.002:
-                text += (f". The error left is above the noise ({floor}): something else is "
-                         "still missing; diagnose the extended fit for a second round")  # fmt: skip
+                text += (
+                    f". The error left is above the noise ({floor}): something else is "
+                    "still missing; diagnose the extended fit for a second round"
+                )
         lines.append(text)
         return ". ".join(lines) + "."
     significant = [n for n in d.ranking if _evidence(d.scores[n], d.refits.get(n)) < d.level]
     f = d.refits.get(significant[0]) if significant else None
     if before <= 2.0 * d.noise_nmse:
-        lines.append(f"No effect is needed: the NMSE {before:.3%} is at the noise level "
-                     f"({floor}) and no candidate removes {d.min_fall:.0%} of it")  # fmt: skip
+        lines.append(
+            f"No effect is needed: the NMSE {before:.3%} is at the noise level "
+            f"({floor}) and no candidate removes {d.min_fall:.0%} of it"
+        )
     elif significant and f is None:
-        lines.append(f"{significant[0]} is significant (score test p = "
-                     f"{d.scores[significant[0]].p_value:.2g}); run the refits to see how "
-                     "much of the error it removes")  # fmt: skip
+        lines.append(
+            f"{significant[0]} is significant (score test p = "
+            f"{d.scores[significant[0]].p_value:.2g}); run the refits to see how "
+            "much of the error it removes"
+        )
     elif significant:
-        why = (f"removes only {f.fall:.0%} of the squared error" if f.fall < d.min_fall else
-               f"removes only {before - f.nmse:.3%} of NMSE, less than {d.noise_multiple:g} "
-               f"noise floors ({d.noise_multiple * d.noise_nmse:.3%}): no more than fitting "
-               "noise and cycle-to-cycle variability would")  # fmt: skip
-        lines.append(f"No catalogue effect is needed: {significant[0]} is statistically "
-                     f"detectable (p = {_evidence(d.scores[significant[0]], f):.2g}) but {why} "
-                     f"(NMSE {before:.3%}, {floor})")  # fmt: skip
+        why = (
+            f"removes only {f.fall:.0%} of the squared error"
+            if f.fall < d.min_fall
+            else f"removes only {before - f.nmse:.3%} of NMSE, less than {d.noise_multiple:g} "
+            f"noise floors ({d.noise_multiple * d.noise_nmse:.3%}): no more than fitting "
+            "noise and cycle-to-cycle variability would"
+        )
+        lines.append(
+            f"No catalogue effect is needed: {significant[0]} is statistically "
+            f"detectable (p = {_evidence(d.scores[significant[0]], f):.2g}) but {why} "
+            f"(NMSE {before:.3%}, {floor})"
+        )
     else:
-        lines.append(f"No candidate effect is significant (NMSE {before:.3%}, {floor}): the "
-                     "misfit left is not one the catalogue describes")  # fmt: skip
+        lines.append(
+            f"No candidate effect is significant (NMSE {before:.3%}, {floor}): the "
+            "misfit left is not one the catalogue describes"
+        )
     failures = d.comparison.failures()
     if failures and before > 2.0 * d.noise_nmse:
         lines.append("Where the model fails: " + "; ".join(failures[:3]))
@@ -925,6 +1053,11 @@ def extend(result: FitResult, recording: Recording, effect, params=None, **fit_k
     model = result.model.with_effect(effect)
     names = tuple(result.params) + tuple(params or type(effect).parameters)
     s = result.settings
-    kwargs = {"iterations": 40, "progress": False, "substeps": s["substeps"],
-              "warmup": max(s["warmup"], default_warmup(model)), **fit_kwargs}  # fmt: skip
+    kwargs = {
+        "iterations": 40,
+        "progress": False,
+        "substeps": s["substeps"],
+        "warmup": max(s["warmup"], default_warmup(model)),
+        **fit_kwargs,
+    }
     return fit(model, recording, params=names, **kwargs)

@@ -41,8 +41,13 @@ from .pso import SwarmSettings, init_swarm, run_chunk
 from .recording import Recording
 
 #: Default search box per parameter, as factors of the starting value.
-DEFAULT_FACTORS = {"K": (0.4, 2.5), "C_f": (0.05, 20.0), "t_c": (0.25, 4.0), "P_s": (0.5, 2.0),
-                   "S": (0.1, 10.0)}  # fmt: skip
+DEFAULT_FACTORS = {
+    "K": (0.4, 2.5),
+    "C_f": (0.05, 20.0),
+    "t_c": (0.25, 4.0),
+    "P_s": (0.5, 2.0),
+    "S": (0.1, 10.0),
+}
 #: Parameters searched in linear coordinates (their off-value is 0, or they may be negative):
 #: name -> (default low, default high, scale), in the parameter's unit. Any other parameter
 #: whose starting value is 0 is searched linearly too, with the entry here or (0, 1, 0.1).
@@ -103,6 +108,13 @@ class FitResult:
         settings: the fit's settings (fitted names, bounds, swarm, warm-up, ...).
         model: the fitted model.
         recording_name: the recording's name.
+        status: whether the fit can be trusted (`FIT_STATUSES`): "successful"; "at_bound"
+            (a parameter ended at an edge of its search box: the box does not hold the
+            optimum, widen it with ``bounds``); "worse_than_mean" (the fit explains the
+            recording less well than its mean, a constant, does); "not_finite"; "unknown"
+            (read from a file of an earlier format).
+        nmse_of_mean: NMSE of the recording's mean as a constant waveform: the error of a
+            model that explains nothing, which a fit must beat.
     """
 
     params: dict
@@ -118,13 +130,52 @@ class FitResult:
     settings: dict
     model: VocalFoldModel | None = None
     recording_name: str = ""
+    status: str = "successful"
+    nmse_of_mean: float | None = None
+
+    @property
+    def failed(self) -> bool:
+        """Whether the fit failed (``status`` is neither "successful" nor "unknown")."""
+        return self.status not in ("successful", "unknown")
+
+    def status_message(self) -> str:
+        """The status in words, naming the parameters at their bounds."""
+        if self.status == "at_bound":
+            edges = []
+            for name, (low, high) in self.settings.get("bounds", {}).items():
+                value = self.params.get(name)
+                if value is not None and _at_edge(value, low, high):
+                    edges.append(
+                        f"{name} = {value:.6g} {self.units.get(name, '')} at the edge "
+                        f"of its search box [{low:.6g}, {high:.6g}]"
+                    )
+            return (
+                "failed: "
+                + "; ".join(edges or ["a parameter at its bound"])
+                + ": the box does not hold the optimum (widen it with bounds=...)"
+            )
+        if self.status == "worse_than_mean":
+            return (
+                f"failed: NMSE {self.nmse:.4g} is no better than the recording's mean as a "
+                f"constant ({self.nmse_of_mean:.4g}): the model does not describe this "
+                "waveform (check the area unit, the frame rate and the starting model)"
+            )
+        if self.status == "not_finite":
+            return "failed: the fitted error is not finite (the simulation failed)"
+        return self.status
 
     def simulate(self, recording: Recording):
         """The fitted model's `Simulation` on the recording's frames."""
-        return simulate(self.model, recording.fps, recording.n_frames,
-                        substeps=self.settings["substeps"], t_start=self.settings["warmup"],
-                        time_shift=self.time_shift,
-                        max_time_shift=self.settings["max_time_shift"])  # fmt: skip
+        return simulate(
+            self.model,
+            recording.fps,
+            recording.n_frames,
+            substeps=self.settings["substeps"],
+            t_start=self.settings["warmup"],
+            time_shift=self.time_shift,
+            max_time_shift=self.settings["max_time_shift"],
+            throw=False,
+        )
 
     def fitted_gaw(self, recording: Recording) -> np.ndarray:
         """The fitted GAW on the recording's frames, clipped at zero, in the recording's unit."""
@@ -132,22 +183,22 @@ class FitResult:
 
     def to_json(self, path) -> None:
         """Save as JSON (schema: ``data_schema/fit_result.schema.json``)."""
-        import json
-        import pathlib
-
+        from .io import write_json
         from .serialise import fit_result_to_dict
 
-        pathlib.Path(path).write_text(json.dumps(fit_result_to_dict(self), indent=1) + "\n")
+        write_json(path, fit_result_to_dict(self))
 
     @classmethod
-    def from_json(cls, path) -> "FitResult":
-        """Load a result saved with `to_json`."""
-        import json
-        import pathlib
+    def from_json(cls, path, terms=()) -> "FitResult":
+        """Load a result saved with `to_json`.
 
-        from .serialise import fit_result_from_dict
+        The file is validated against its schema first, and its model may name only vfjax's
+        own term classes and those in ``terms`` (your own effects, passed on purpose): a
+        file never makes vfjax import or call anything else.
+        """
+        from .serialise import read_fit_result
 
-        return fit_result_from_dict(json.loads(pathlib.Path(path).read_text()))
+        return read_fit_result(path, terms)
 
 
 class _Problem(eqx.Module):
@@ -195,10 +246,18 @@ class _Problem(eqx.Module):
     def shape(self, z):
         """Simulated GAW at S = 1 (clipped at 0) and whether the simulation is valid."""
         # forward mode is all the LM needs (`_residual`): the early-stopping loop's own jvp
-        sim = simulate(self.model_at(z, log_s=None).set(S=1.0), self.fps, self.n_frames,
-                       substeps=self.substeps, t_start=self.warmup, time_shift=self.shift(z),
-                       max_time_shift=self.max_time_shift, reverse_mode=False)  # fmt: skip
-        ok = sim.complete & ~sim.diverged
+        sim = simulate(
+            self.model_at(z, log_s=None).set(S=1.0),
+            self.fps,
+            self.n_frames,
+            substeps=self.substeps,
+            t_start=self.warmup,
+            time_shift=self.shift(z),
+            max_time_shift=self.max_time_shift,
+            reverse_mode=False,
+            throw=False,
+        )
+        ok = sim.complete
         g = jnp.where(ok, sim.area, 0.0)
         return jnp.maximum(g, 0.0), ok
 
@@ -221,9 +280,16 @@ class _Problem(eqx.Module):
         projected S and the cost need at every shift are correlations of the measured GAW
         with the grid's even and odd samples. (Observation terms act pointwise in time.)"""
         model = self.model_at(jnp.concatenate([z_phys, jnp.zeros(1)])).set(S=1.0)
-        sim = simulate(model, self.fps, self.n_frames, substeps=self.substeps,
-                       t_start=self.warmup, max_time_shift=self.max_time_shift)  # fmt: skip
-        ok = sim.complete & ~sim.diverged
+        sim = simulate(
+            model,
+            self.fps,
+            self.n_frames,
+            substeps=self.substeps,
+            t_start=self.warmup,
+            max_time_shift=self.max_time_shift,
+            throw=False,
+        )
+        ok = sim.complete
         q, n = _SHIFTS_PER_FRAME, self.n_shifts
         length = q * (-(-n // q) + self.n_frames - 1)  # whole rows of q samples
         times = sim.time[0] + jnp.arange(length) / (q * self.fps)
@@ -349,7 +415,7 @@ def match_fundamental_frequency(model: VocalFoldModel, recording: Recording, ste
     n = max(recording.n_frames, int(0.08 * recording.fps))
 
     def f0_of(k):
-        sim = simulate(model.set(K=k), recording.fps, n, t_start=0.02)
+        sim = simulate(model.set(K=k), recording.fps, n, t_start=0.02, throw=False)
         if not bool(sim.complete):
             return float("nan")
         return fundamental_frequency(np.asarray(sim.area), recording.fps)
@@ -388,15 +454,17 @@ def _bounds(names, model, bounds):
             if bounds and n in bounds:
                 a, b = bounds[n]
             if not (a <= ref <= b and a < b):
-                raise ValueError(f"bounds for {n} must satisfy low <= start ({ref}) <= high, "
-                                 f"got {(a, b)}")  # fmt: skip
+                raise ValueError(
+                    f"bounds for {n} must satisfy low <= start ({ref}) <= high, got {(a, b)}"
+                )
             lo.append((a - ref) / scale)
             hi.append((b - ref) / scale)
         elif bounds and n in bounds:
             a, b = bounds[n]
             if not (0 < a < ref < b):
-                raise ValueError(f"bounds for {n} must satisfy 0 < low < start ({ref}) < high, "
-                                 f"got {bounds[n]}")  # fmt: skip
+                raise ValueError(
+                    f"bounds for {n} must satisfy 0 < low < start ({ref}) < high, got {bounds[n]}"
+                )
             lo.append(math.log(a / ref))
             hi.append(math.log(b / ref))
         else:
@@ -435,14 +503,17 @@ def _prepare(model, recording, params, warmup, substeps, bounds, held=()):
     fit_s = "S" in params
     if recording.unit != "px":
         if fit_s:
-            raise ValueError(f"S converts model mm² to pixels; the recording is in "
-                             f"{recording.unit}, so S is fixed and cannot be fitted")  # fmt: skip
+            raise ValueError(
+                f"S converts model mm² to pixels; the recording is in "
+                f"{recording.unit}, so S is fixed and cannot be fitted"
+            )
         model = model.set(S=_AREA_TO_PX_SCALE[recording.unit])
     names = tuple(n for n in params if n != "S")
     held = tuple(held)
     if any(n not in names for n in held):
-        raise ValueError(f"only fitted parameters other than S can be held, got {held} "
-                         f"for params {params}")  # fmt: skip
+        raise ValueError(
+            f"only fitted parameters other than S can be held, got {held} for params {params}"
+        )
     lo, hi = _bounds(names, model, bounds)
     free = np.array([n not in held for n in names], dtype=float)
     lo, hi = lo * free, hi * free  # a held parameter's search interval is [0, 0]
@@ -457,7 +528,7 @@ def _prepare(model, recording, params, warmup, substeps, bounds, held=()):
         scale=jnp.asarray([(search_range(model, n) or (0.0, 1.0, 0.1))[2] for n in names]),
         floor=jnp.asarray(
             [0.0 if (search_range(model, n) or (-1.0,))[0] >= 0 else -jnp.inf for n in names]
-        ),  # fmt: skip
+        ),
         free=jnp.asarray(free),
         linear=tuple(_is_linear(model, n, float(model.params()[n])) for n in names),
         s_reference=jnp.asarray(float(model.params()["S"])),
@@ -607,8 +678,11 @@ def fit(
     if show:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=iterations + (lm_steps if polish else 0), desc=f"fit {recording.name}",
-                   leave=False)  # fmt: skip
+        bar = tqdm(
+            total=iterations + (lm_steps if polish else 0),
+            desc=f"fit {recording.name}",
+            leave=False,
+        )
 
     # Stage 1: the swarm.
     t0 = time.perf_counter()
@@ -669,28 +743,60 @@ def fit(
         bar.close()
 
     return _make_result(
-        problem, recording, params, best_y, best_cost,
-        pso_trace=pso_trace, lm_trace=lm_trace, trace_times=trace_times,
-        timings={"pso_s": t_pso, "lm_s": t_lm, "total_s": time.perf_counter() - t_all,
-                 "first_swarm_s": t_first, "compile_s": compile_s},
-        n_simulations=n_sims, optimistix_result=result_name, lower=lower, upper=upper,
+        problem,
+        recording,
+        params,
+        best_y,
+        best_cost,
+        pso_trace=pso_trace,
+        lm_trace=lm_trace,
+        trace_times=trace_times,
+        timings={
+            "pso_s": t_pso,
+            "lm_s": t_lm,
+            "total_s": time.perf_counter() - t_all,
+            "first_swarm_s": t_first,
+            "compile_s": compile_s,
+        },
+        n_simulations=n_sims,
+        optimistix_result=result_name,
+        lower=lower,
+        upper=upper,
         swarm=(swarm_size, iterations, lm_steps, substeps, settings),
-    )  # fmt: skip
+    )
 
 
 def _make_result(
-    problem, recording, params, y, nmse, *, pso_trace, lm_trace, trace_times, timings,
-    n_simulations, optimistix_result, lower, upper, swarm,
-) -> FitResult:  # fmt: skip
+    problem,
+    recording,
+    params,
+    y,
+    nmse,
+    *,
+    pso_trace,
+    lm_trace,
+    trace_times,
+    timings,
+    n_simulations,
+    optimistix_result,
+    lower,
+    upper,
+    swarm,
+) -> FitResult:
     """The `FitResult` of the fitted point ``y`` (shared by `fit` and `fit_many`)."""
     swarm_size, iterations, lm_steps, substeps, settings = swarm
     fitted, shift = _unpack(problem, y)
     params = tuple(n for n in params if n not in problem.held)
     units = fitted.parameter_units()
     values = fitted.params()
-    bounds = {n: _bounds_in_units(problem, i, a, b)
-              for i, (n, a, b) in enumerate(zip(problem.names, np.asarray(lower),
-                                                np.asarray(upper))) if n in params}  # fmt: skip
+    bounds = {
+        n: _bounds_in_units(problem, i, a, b)
+        for i, (n, a, b) in enumerate(zip(problem.names, np.asarray(lower), np.asarray(upper)))
+        if n in params
+    }
+    if problem.fit_s:
+        bounds["S"] = [float(v) for v in np.asarray(problem.s_bounds)]
+    status, nmse_of_mean = _status(problem, params, values, bounds, float(nmse))
     return FitResult(
         params={n: float(values[n]) for n in params},
         units={n: units[n] for n in params},
@@ -714,16 +820,56 @@ def _make_result(
             "fps": recording.fps,
             "n_frames": recording.n_frames,
             "pso": settings._asdict(),
-        },  # fmt: skip
+        },
         model=fitted,
         recording_name=recording.name,
+        status=status,
+        nmse_of_mean=nmse_of_mean,
     )
+
+
+#: The values of `FitResult.status`.
+FIT_STATUSES = ("successful", "at_bound", "worse_than_mean", "not_finite", "unknown")
+_EDGE = 1e-3  # a value within this fraction of its box's width from an edge is at it
+
+
+def _at_edge(value, low, high, floor=None) -> bool:
+    """Whether ``value`` lies at or beyond an edge of [low, high] (in log coordinates when
+    both are > 0); a lower edge at the physical ``floor`` (a gap of 0) does not count."""
+    if low > 0 and high > 0 and value > 0:
+        value, low_c, high_c = math.log(value), math.log(low), math.log(high)
+    else:
+        low_c, high_c = low, high
+    margin = _EDGE * (high_c - low_c)
+    at_low = value <= low_c + margin and not (floor is not None and low <= floor)
+    return at_low or value >= high_c - margin
+
+
+def _status(problem, params, values, bounds, nmse) -> tuple[str, float]:
+    """`FitResult.status` and the NMSE of the recording's mean."""
+    measured = np.asarray(problem.measured)
+    of_mean = float(np.sum((measured - measured.mean()) ** 2) / np.sum(measured**2))
+    if not np.isfinite(nmse):
+        return "not_finite", of_mean
+    if nmse >= of_mean:
+        return "worse_than_mean", of_mean
+    floors = dict(zip(problem.names, np.asarray(problem.floor)))
+    for n in params:
+        low, high = bounds[n]
+        if _at_edge(float(values[n]), low, high, floors.get(n)):
+            return "at_bound", of_mean
+    return "successful", of_mean
 
 
 def _result_name(result, index=None) -> str:
     """optimistix's result code as a plain string (``index``: element of a batched code)."""
-    for name in ("successful", "max_steps_reached", "nonlinear_max_steps_reached",
-                 "nonlinear_divergence", "singular"):  # fmt: skip
+    for name in (
+        "successful",
+        "max_steps_reached",
+        "nonlinear_max_steps_reached",
+        "nonlinear_divergence",
+        "singular",
+    ):
         member = getattr(optx.RESULTS, name, None)
         if member is None:
             continue
@@ -780,8 +926,10 @@ def fit_many(
     first = recordings[0]
     for r in recordings[1:]:
         if (r.fps, r.n_frames, r.unit) != (first.fps, first.n_frames, first.unit):
-            raise ValueError("fit_many needs recordings of equal fps, frame count and unit; "
-                             f"{r.name} differs from {first.name}")  # fmt: skip
+            raise ValueError(
+                "fit_many needs recordings of equal fps, frame count and unit; "
+                f"{r.name} differs from {first.name}"
+            )
     t_all = time.perf_counter()
     key = jax.random.key(0) if key is None else key
     hold = [()] * len(models) if hold is None else [tuple(h) for h in hold]
@@ -794,8 +942,9 @@ def fit_many(
     ]
     shift = max(p.max_time_shift for p, _, _, _ in prepared)
     linear = _common_coordinates([p for p, _, _, _ in prepared])
-    problems = [dataclasses.replace(p, max_time_shift=shift, linear=linear)
-                for p, _, _, _ in prepared]  # fmt: skip
+    problems = [
+        dataclasses.replace(p, max_time_shift=shift, linear=linear) for p, _, _, _ in prepared
+    ]
     lowers = jnp.stack([lo for _, lo, _, _ in prepared])
     uppers = jnp.stack([hi for _, _, hi, _ in prepared])
     batch = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
@@ -804,8 +953,9 @@ def fit_many(
 
     t0 = time.perf_counter()
     # the whole swarm stage (and the LM's starting points) is one compiled program
-    y, cost0, pso_traces = _many_search(batch, lowers, uppers, keys, starts, swarm_size,
-                                        settings, iterations)  # fmt: skip
+    y, cost0, pso_traces = _many_search(
+        batch, lowers, uppers, keys, starts, swarm_size, settings, iterations
+    )
     pso_traces = np.asarray(pso_traces)
     t_pso = time.perf_counter() - t0
 
@@ -839,10 +989,15 @@ def fit_many(
     # starts where a fit sits on a grazing closure (benchmarks/README.md, "Fitting").
     best_cost = np.array([float(_cost_alone(p, best_y[i])) for i, p in enumerate(problems)])
 
-    trace_times = np.r_[np.linspace(0, t_pso, pso_traces.shape[1]),
-                        t_pso + np.linspace(0, t_lm, lm_traces.shape[1])].tolist()  # fmt: skip
-    timings = {"pso_s": t_pso, "lm_s": t_lm, "total_s": time.perf_counter() - t_all,
-               "batch_size": len(recordings)}  # fmt: skip
+    trace_times = np.r_[
+        np.linspace(0, t_pso, pso_traces.shape[1]), t_pso + np.linspace(0, t_lm, lm_traces.shape[1])
+    ].tolist()
+    timings = {
+        "pso_s": t_pso,
+        "lm_s": t_lm,
+        "total_s": time.perf_counter() - t_all,
+        "batch_size": len(recordings),
+    }
     n_sims = swarm_size * (1 + iterations) + n_lm * (1 + best_y.shape[1])
     return [
         _make_result(
@@ -860,7 +1015,7 @@ def fit_many(
             lower=lowers[i],
             upper=uppers[i],
             swarm=(swarm_size, iterations, lm_steps, substeps, settings),
-        )  # fmt: skip
+        )
         for i, (rec, problem) in enumerate(zip(recordings, problems))
     ]
 
@@ -872,8 +1027,10 @@ def _common_coordinates(problems) -> tuple[bool, ...]:
     for i, name in enumerate(problems[0].names):
         kinds = {p.linear[i] for p in problems if p.free[i]} or {problems[0].linear[i]}
         if len(kinds) > 1:
-            raise ValueError(f"fit_many: {name} starts at 0 in some fits (linear search) and "
-                             "away from 0 in others (log search); start them alike")  # fmt: skip
+            raise ValueError(
+                f"fit_many: {name} starts at 0 in some fits (linear search) and "
+                "away from 0 in others (log search); start them alike"
+            )
         common.append(kinds.pop())
     return tuple(common)
 

@@ -33,6 +33,7 @@ import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from . import phases
@@ -121,9 +122,11 @@ class Simulation(eqx.Module):
         velocity: fold velocity v (cm/s) at the frames.
         phase: phase code of each frame (0 opening, 1 open, 2 closing, 3 closed).
         diverged: the state left the physical range (|x| > 1 cm) or became non-finite.
-        complete: the integration reached the last frame (False when the event budget ran
-            out or it diverged).
+        complete: the simulation succeeded: every frame computed (False when the event
+            budget ran out, it diverged, or the parameters or time shift were invalid).
         n_events: number of located events (regime switches).
+        result: how the simulation ended (`RESULTS`): successful, event budget exhausted,
+            diverged, invalid parameters, time shift out of range.
         dense: the integrator's nodes, for reading the motion at any time.
     """
 
@@ -136,6 +139,7 @@ class Simulation(eqx.Module):
     diverged: Bool[Array, ""]
     complete: Bool[Array, ""]
     n_events: Int[Array, ""]
+    result: "RESULTS"
     dense: DenseOutput
 
 
@@ -305,8 +309,9 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
         )
 
         new = jax.tree.map(lambda a, b: jnp.where(c_hold, a, b), held, free)
-        new = new._replace(**{k: _computed_once(getattr(new, k), one)
-                              for k in ("t", "x", "v", "hold_left")})  # fmt: skip
+        new = new._replace(
+            **{k: _computed_once(getattr(new, k), one) for k in ("t", "x", "v", "hold_left")}
+        )
         bad = (
             ~jnp.isfinite(new.x)
             | ~jnp.isfinite(new.v)
@@ -389,22 +394,88 @@ def _integrate_jvp(primals, tangents, *, h, n_steps, n_iter, origin):
     return eqx.filter_jvp(scan, primals, tangents)
 
 
-def _check_static(fps, n_frames, substeps, t_start, max_events):
-    if isinstance(fps, jax.core.Tracer) or not isinstance(fps, (int, float)):
-        raise TypeError(f"fps must be a Python number (it fixes array shapes), got {fps!r}")
-    if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"fps (frame rate) must be a finite number > 0 Hz, got {fps}")
-    if not isinstance(n_frames, int) or n_frames < 1:
-        raise ValueError(f"n_frames must be an integer >= 1, got {n_frames!r}")
-    if not isinstance(substeps, int) or substeps < 1:
-        raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
-    if not (math.isfinite(t_start) and t_start >= 0):
-        raise ValueError(f"t_start must be a finite time >= 0 s, got {t_start}")
-    if max_events is not None and (not isinstance(max_events, int) or max_events < 0):
-        raise ValueError(f"max_events must be an integer >= 0, got {max_events!r}")
+#: The most loop iterations (grid steps plus the event budget) one simulation may take. Each
+#: iteration keeps one row of dense output per simulated recording (28 bytes; a reverse-mode
+#: derivative keeps more): 2^21 rows are about 60 MB. A frame rate of 0.001 Hz, a horizon of
+#: days or a budget of 10^9 events is refused before anything is allocated.
+MAX_ITERATIONS = 2**21
 
 
-@eqx.filter_jit
+class RESULTS(eqx.Enumeration):
+    """How a simulation ended (`Simulation.result`); ``RESULTS[sim.result]`` gives the message.
+
+    With ``throw=True`` (the default) `simulate` raises on anything but ``successful``."""
+
+    successful = ""
+    event_budget_exhausted = (
+        "The integration used up its event budget before the last frame: the frames after "
+        "it are NaN. Raise `max_events` (a vibration faster than ~570 Hz, or chattering "
+        "contact)."
+    )
+    diverged = (
+        "The state left the physical range (|x| > 1 cm or |v| > 1e5 cm/s) or became "
+        "non-finite: the frames after it are NaN. A mass or stiffness too extreme for the "
+        "step (raise `substeps`), or an unstable model."
+    )
+    invalid_parameters = (
+        "A parameter is outside its admissible range (NaN, K <= 0, M <= 0, S <= 0, t_c < 0, "
+        "A_g0 <= 0, ...; `VocalFoldModel.check` names it), or the initial state is not "
+        "finite: every frame is NaN."
+    )
+    time_shift_out_of_range = (
+        "time_shift is outside [0, max_time_shift]: the shifted frames would leave the "
+        "integrated interval. Raise `max_time_shift`."
+    )
+
+
+class SimulationError(RuntimeError):
+    """A simulation that did not succeed, raised by `simulate` with ``throw=True`` outside
+    jit (inside jit: an `equinox` runtime error with the same message)."""
+
+
+_FAILURES = ("invalid_parameters", "time_shift_out_of_range", "diverged", "event_budget_exhausted")
+
+
+def result_message(result: RESULTS) -> str:
+    """The message of a (possibly batched) `RESULTS` value: each failure that occurs, once."""
+    found = [
+        RESULTS[getattr(RESULTS, name)]
+        for name in _FAILURES
+        if bool(jnp.any(result == getattr(RESULTS, name)))
+    ]
+    return " ".join(found) if found else "successful"
+
+
+def _as_count(name: str, value, minimum: int) -> int:
+    """A Python int from an int or NumPy integer; floats (even 201.0) and bools are refused."""
+    if isinstance(value, jax.core.Tracer):
+        raise TypeError(
+            f"{name} must be a concrete integer (it fixes array shapes), not a traced value"
+        )
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {value!r} ({type(value).__name__})")
+    value = int(value)
+    if value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value}")
+    return value
+
+
+def _as_seconds(name: str, value, *, positive: bool = False) -> float:
+    """A Python float from a real number or NumPy scalar (a value that sizes the program)."""
+    if isinstance(value, jax.core.Tracer):
+        raise TypeError(
+            f"{name} must be a concrete number (it sizes the integration), not a traced value"
+        )
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise TypeError(f"{name} must be a number, got {value!r} ({type(value).__name__})")
+    value = float(value)
+    if not math.isfinite(value) or value < 0 or (positive and value == 0):
+        raise ValueError(
+            f"{name} must be a finite number {'>' if positive else '>='} 0, got {value}"
+        )
+    return value
+
+
 def simulate(
     model: VocalFoldModel,
     fps: float,
@@ -418,6 +489,7 @@ def simulate(
     initial_velocity: ArrayLike = 0.0,
     max_events: int | None = None,
     reverse_mode: bool = True,
+    throw: bool = True,
 ) -> Simulation:
     """Simulate a glottal area waveform (GAW) sampled at the camera's frame rate.
 
@@ -427,13 +499,17 @@ def simulate(
     ``t_start`` (the first frame when ``time_shift`` is 0): ``time_shift`` moves the frames
     within one simulation, and moves nothing else (so a fit can read every shift from one
     simulation's dense output).
-    Jit-compiled; differentiable (forward and reverse) in every array leaf of ``model`` and in
-    ``time_shift``; vmappable over models with batched leaves.
+
+    Jit-compiled, once per model structure and per value of the arguments that size the
+    integration (``fps``, ``n_frames``, ``substeps``, ``t_start``, ``max_time_shift``,
+    ``max_events``). The model's leaves, ``time_shift`` and the initial state are data: new
+    values reuse the compiled program. Differentiable (forward and reverse) in every array
+    leaf of ``model`` and in ``time_shift``; vmappable over models with batched leaves.
 
     Arguments:
         model: the model (`vfjax.paper_model`, `vfjax.preset`, ...).
-        fps: camera frame rate (Hz), a Python number.
-        n_frames: number of frames.
+        fps: camera frame rate (Hz), a concrete number.
+        n_frames: number of frames, an integer (a NumPy integer is accepted; 201.0 is not).
         substeps: RK4 steps per frame (the step is 1 / (substeps * fps)).
         t_start: start of sampling (s), e.g. to skip the onset transient.
         time_shift: extra, differentiable delay of the sampling (s), in [0, max_time_shift].
@@ -449,22 +525,95 @@ def simulate(
             are taken through the early-stopping loop itself, in forward mode only
             (`jax.jvp`, `jax.jacfwd`; reverse mode raises), which is faster when the folds
             close. The values are the same either way.
+        throw: raise an error when the simulation does not succeed (`RESULTS`; under `vmap`,
+            when any member does not). False: return it with ``result`` set and the frames
+            it could not compute NaN, for batched searches that must go on.
 
     Returns:
         A `Simulation`: the GAW in pixels and the model's area, motion and phases per frame,
-        with the ``diverged`` and ``complete`` flags.
+        with ``result`` and the ``diverged`` and ``complete`` flags.
+
+    Raises:
+        TypeError, ValueError: for arguments that cannot be simulated (a float frame count,
+            a negative frame rate, a concrete time shift outside [0, max_time_shift], a run
+            longer than `MAX_ITERATIONS`, ...), before anything is allocated.
     """
-    _check_static(fps, n_frames, substeps, t_start, max_events)
+    fps = _as_seconds("fps (frame rate, Hz)", fps, positive=True)
+    n_frames = _as_count("n_frames", n_frames, 1)
+    substeps = _as_count("substeps", substeps, 1)
+    t_start = _as_seconds("t_start", t_start)
+    max_time_shift = _as_seconds("max_time_shift", max_time_shift)
+    if max_events is not None:
+        max_events = _as_count("max_events", max_events, 0)
     h = 1.0 / (substeps * fps)
     horizon = t_start + max_time_shift + (n_frames - 1) / fps
     n_steps = max(1, math.ceil(horizon / h - 1e-9))
     if max_events is None:
         max_events = int(EVENTS_PER_SECOND * horizon) + 16
+    n_iter = _CHUNK * -(-(n_steps + max_events) // _CHUNK)
+    if n_iter > MAX_ITERATIONS:
+        raise ValueError(
+            f"simulating {horizon:.6g} s at {substeps} steps per frame of {fps:g} Hz needs "
+            f"{n_steps} steps and a budget of {max_events} events, more than the "
+            f"{MAX_ITERATIONS} iterations one simulation may take (about 60 MB per "
+            "recording): check the frame rate, frame count, t_start and max_events"
+        )
+    time_shift = jnp.asarray(time_shift, dtype=float)
+    if not isinstance(time_shift, jax.core.Tracer):
+        shift = np.asarray(time_shift)
+        if shift.shape != () or not (0.0 <= float(shift) <= max_time_shift + 1e-12):
+            raise ValueError(
+                f"time_shift must be a number in [0, max_time_shift] = [0, {max_time_shift:g}] "
+                f"s, got {shift.tolist()}: raise max_time_shift to integrate far enough"
+            )
+    x_init = None if initial_displacement is None else jnp.asarray(initial_displacement, float)
+    sim = _simulate(
+        model,
+        time_shift,
+        x_init,
+        jnp.asarray(initial_velocity, dtype=float),
+        fps=fps,
+        n_frames=n_frames,
+        h=h,
+        n_steps=n_steps,
+        n_iter=n_iter,
+        t_start=t_start,
+        max_time_shift=max_time_shift,
+        reverse_mode=bool(reverse_mode),
+    )
+    if throw:
+        failed = sim.result != RESULTS.successful
+        if isinstance(failed, jax.core.Tracer):
+            area = sim.result.error_if(sim.area, failed)
+            sim = eqx.tree_at(lambda s: s.area, sim, area)
+        elif bool(jnp.any(failed)):
+            if bool(jnp.any(sim.result == RESULTS.invalid_parameters)):
+                model.check()  # names the parameter, where it is concrete
+            raise SimulationError(result_message(sim.result))
+    return sim
+
+
+@eqx.filter_jit
+def _simulate(
+    model,
+    time_shift,
+    x_init,
+    v_init,
+    *,
+    fps,
+    n_frames,
+    h,
+    n_steps,
+    n_iter,
+    t_start,
+    max_time_shift,
+    reverse_mode,
+) -> Simulation:
     x0 = model.contact_displacement
     xc = model.subcritical_displacement()
-    x_init = x0 if initial_displacement is None else jnp.asarray(initial_displacement, float)
-    v_init = jnp.asarray(initial_velocity, dtype=float)
+    x_init = x0 if x_init is None else x_init
     x_init = jnp.asarray(x_init, dtype=float)
+    valid_model = model.is_valid() & jnp.isfinite(x_init) & jnp.isfinite(v_init)
     start = _Carry(
         t=jnp.zeros((), float),
         x=x_init,
@@ -474,7 +623,6 @@ def simulate(
         flags=_pack(x_init > x0, x_init <= xc, v_init < 0, False),
         events=jnp.zeros((), jnp.int32),
     )
-    n_iter = _CHUNK * -(-(n_steps + max_events) // _CHUNK)
     integrate = _integrate if reverse_mode else _integrate_loop
     end, (ts, xs, vs, codes) = integrate(
         model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=t_start
@@ -486,10 +634,26 @@ def simulate(
         v=jnp.concatenate([start.v[None], vs]),
         phase=jnp.concatenate([codes, codes[-1:]]),
     )
-    times = t_start + jnp.asarray(time_shift, dtype=float) + jnp.arange(n_frames) / fps
+    shift_ok = (time_shift >= 0) & (time_shift <= max_time_shift + 1e-12)
+    times = t_start + time_shift + jnp.arange(n_frames) / fps
     x = dense.displacement(times)
-    valid = times <= end.t + 1e-12
+    valid = (times <= end.t + 1e-12) & valid_model
     area = model.observe(times, x, dense.displacement)
+    diverged = end.flag(_DIVERGED)
+    reached = (end.step >= n_steps) & jnp.all(valid)
+    result = RESULTS.where(
+        ~valid_model,
+        RESULTS.invalid_parameters,
+        RESULTS.where(
+            ~shift_ok,
+            RESULTS.time_shift_out_of_range,
+            RESULTS.where(
+                diverged,
+                RESULTS.diverged,
+                RESULTS.where(reached, RESULTS.successful, RESULTS.event_budget_exhausted),
+            ),
+        ),
+    )
     nan = jnp.nan
     return Simulation(
         time=times,
@@ -498,8 +662,9 @@ def simulate(
         displacement=jnp.where(valid, x, nan),
         velocity=jnp.where(valid, dense.velocity(times), nan),
         phase=dense.phase_at(times),
-        diverged=end.flag(_DIVERGED),
-        complete=(end.step >= n_steps) & ~end.flag(_DIVERGED),
+        diverged=diverged,
+        complete=result == RESULTS.successful,
         n_events=end.events,
+        result=result,
         dense=dense,
     )

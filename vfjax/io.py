@@ -1,43 +1,141 @@
-"""Writing recordings: a CSV table of the GAW plus a JSON sidecar with its metadata."""
+"""Writing files safely, and writing recordings (a CSV table of the GAW plus a JSON sidecar).
 
+Every file vfjax writes is written atomically: to a temporary file beside it, then renamed
+over the target, so that an interrupted run never leaves a half-written file, and a reader
+sees either the old file or the new one. The command line writes each run's outputs into a
+staging folder and moves them into the output folder once the run has finished
+(`staged_output`).
+"""
+
+import contextlib
 import json
+import os
 import pathlib
+import shutil
+import tempfile
 
 import numpy as np
 
 from .phases import PHASE_NAMES
 
 
-def write_simulation(sim, path, *, metadata: dict | None = None) -> pathlib.Path:
-    """Write a `Simulation` as ``path`` (CSV: frame, time_s, area_px, phase) and a sidecar.
-
-    The sidecar, ``path`` with the suffix ``.json``, holds the frame rate (Hz), the area unit
-    and ``metadata``. Returns the CSV path.
-    """
+@contextlib.contextmanager
+def atomic_path(path):
+    """A temporary path beside ``path`` to write to; renamed to ``path`` when the block ends
+    without an error, removed otherwise. The temporary name keeps the suffix, so writers that
+    choose a format by it (matplotlib's ``savefig``) write the right one."""
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.stem}.", suffix=f".partial{path.suffix}", dir=path.parent
+    )
+    os.close(fd)
+    tmp = pathlib.Path(tmp)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text(path, text: str) -> pathlib.Path:
+    """Write ``text`` to ``path`` atomically (UTF-8); returns the path."""
+    path = pathlib.Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
+
+
+def write_json(path, data) -> pathlib.Path:
+    """Write ``data`` as indented JSON to ``path`` atomically; returns the path."""
+    return write_text(path, json.dumps(data, indent=1) + "\n")
+
+
+def save_figure(fig, path, **kwargs) -> pathlib.Path:
+    """``fig.savefig(path, **kwargs)``, atomically; returns the path."""
+    path = pathlib.Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, **kwargs)
+    return path
+
+
+def check_output_file(path, force: bool) -> pathlib.Path:
+    """``path``, or ValueError if a file is there already and ``force`` is False."""
+    path = pathlib.Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path} is a folder; name a file to write")
+    if path.exists() and not force:
+        raise ValueError(f"{path} exists; use --force to overwrite it, or name another file")
+    return path
+
+
+@contextlib.contextmanager
+def staged_output(folder, force: bool = False):
+    """A staging folder for one run's outputs, moved into ``folder`` when the block ends.
+
+    ``folder`` must be missing or empty unless ``force``; with ``force`` the run's files
+    replace their namesakes (other files stay). The staging folder is a hidden sibling of
+    ``folder``; on an error or an interrupt it is removed and ``folder`` is left as it was.
+    """
+    folder = pathlib.Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{folder} exists and is not a folder")
+    if folder.is_dir() and any(folder.iterdir()) and not force:
+        n = sum(1 for _ in folder.iterdir())
+        raise ValueError(
+            f"output folder {folder} is not empty ({n} entries): use --force to "
+            "overwrite its files, or name another folder with --out"
+        )
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    stage = pathlib.Path(tempfile.mkdtemp(prefix=f".{folder.name}.partial-", dir=folder.parent))
+    try:
+        yield stage
+        folder.mkdir(exist_ok=True)
+        for src in sorted(stage.rglob("*")):
+            if src.is_file():
+                dest = folder / src.relative_to(stage)
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(src, dest)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def write_simulation(sim, path, *, metadata: dict | None = None) -> pathlib.Path:
+    """Write a `Simulation` as ``path`` (CSV) and a JSON sidecar, both readable by
+    `vfjax.load_recording`.
+
+    Columns: ``frame``, ``time_s`` (s, from the first frame), ``area_px`` (what a camera sees:
+    the GAW clipped at zero), ``model_area_px`` (the model's signed area, negative while the
+    folds overlap) and ``phase``. The sidecar, ``path`` with the suffix ``.json``, holds the
+    frame rate (Hz), the area unit and ``metadata``. Returns the CSV path.
+    """
+    path = pathlib.Path(path)
     t = np.asarray(sim.time)
     area = np.asarray(sim.area)
     phase = np.asarray(sim.phase)
-    with path.open("w") as f:
-        f.write("frame,time_s,area_px,phase\n")
-        for i, (ti, ai, pi) in enumerate(zip(t, area, phase)):
-            f.write(f"{i},{ti:.8f},{ai:.6f},{PHASE_NAMES[int(pi)]}\n")
+    lines = ["frame,time_s,area_px,model_area_px,phase"]
+    for i, (ti, ai, pi) in enumerate(zip(t - t[0], area, phase)):
+        lines.append(f"{i},{ti:.9f},{max(ai, 0.0):.6f},{ai:.6f},{PHASE_NAMES[int(pi)]}")
     fps = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else None
-    sidecar = {"fps": round(fps, 6) if fps else None, "area_unit": "px", "source": "vfjax"}
+    sidecar = {
+        "fps": round(fps, 6) if fps else None,
+        "area_unit": "px",
+        "source": "vfjax",
+        "t_start_s": float(t[0]),
+    }
     sidecar.update(metadata or {})
-    path.with_suffix(".json").write_text(json.dumps(sidecar, indent=1) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
+    write_json(path.with_suffix(".json"), sidecar)
     return path
 
 
 def write_recording(recording, path) -> pathlib.Path:
     """Write a `Recording` as ``path`` (CSV: frame, time_s, area_<unit>) and its sidecar."""
     path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w") as f:
-        f.write(f"frame,time_s,area_{recording.unit}\n")
-        for i, (t, a) in enumerate(zip(recording.time, recording.area)):
-            f.write(f"{i},{t:.8f},{a:.6f}\n")
+    lines = [f"frame,time_s,area_{recording.unit}"]
+    for i, (t, a) in enumerate(zip(recording.time, recording.area)):
+        lines.append(f"{i},{t:.9f},{a:.6f}")
+    write_text(path, "\n".join(lines) + "\n")
     sidecar = {"fps": recording.fps, "area_unit": recording.unit, **recording.metadata}
-    path.with_suffix(".json").write_text(json.dumps(sidecar, indent=1) + "\n")
+    write_json(path.with_suffix(".json"), sidecar)
     return path

@@ -1,12 +1,14 @@
 """A vocal-fold model: the subject's constants, a tuple of terms, and the camera scale."""
 
 from collections.abc import Callable
+from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._validate import as_float, check_positive
+from ._validate import as_parameter, check_constraints, constraints_hold, positive
 from .subject import Subject
 from .terms.base import (
     AbstractForce,
@@ -43,13 +45,19 @@ class VocalFoldModel(eqx.Module):
 
     subject: Subject
     terms: tuple[AbstractTerm, ...]
-    S: ArrayLike = eqx.field(default=1.0, converter=as_float)
+    S: ArrayLike = eqx.field(default=1.0, converter=as_parameter)
+    constraints: ClassVar = (positive("S", "S (scaling factor)", "px/mm²"),)
 
     def __check_init__(self):
-        check_positive("S (scaling factor)", self.S, "px/mm²")
+        if not isinstance(self.subject, Subject):
+            raise TypeError(f"subject must be a vfjax.Subject, got {self.subject!r}")
+        if not isinstance(self.terms, tuple):
+            raise TypeError(f"terms must be a tuple of vfjax terms, got {self.terms!r}")
         for term in self.terms:
             if not isinstance(term, AbstractTerm):
                 raise TypeError(f"terms must be vfjax terms, got {term!r}")
+        check_constraints(self)
+        self._check_subcritical()
         kinds = [type(t) for t in self.terms]
         if len(set(kinds)) != len(kinds):
             raise ValueError("a model holds at most one term of each class")
@@ -59,6 +67,39 @@ class VocalFoldModel(eqx.Module):
                 if name in names or name in _MODEL_PARAMETERS:
                     raise ValueError(f"parameter name {name!r} appears twice in the model")
                 names[name] = type(term).__name__
+
+    # ------------------------------------------------------------ validity
+    def check(self) -> "VocalFoldModel":
+        """Raise ValueError, with the presets' messages, if a concrete parameter is outside
+        its admissible range (values being traced are skipped); returns the model.
+
+        Building a model checks it; so does `set`. A model changed otherwise (``eqx.tree_at``,
+        ``jax.tree.map``) is not checked until this is called, or until `vfjax.simulate`
+        reports it (``Simulation.result``)."""
+        check_constraints(self.subject)
+        for term in self.terms:
+            check_constraints(term)
+        check_constraints(self)
+        self._check_subcritical()
+        return self
+
+    def is_valid(self):
+        """Whether every parameter is admissible and the sub-critical displacement x_c
+        exists (a traced boolean: usable inside jit, vmap and grad)."""
+        ok = self.subject.is_valid() & constraints_hold(self)
+        for term in self.terms:
+            ok = ok & term.is_valid()
+        return ok & jnp.isfinite(self.subcritical_displacement())
+
+    def _check_subcritical(self):
+        xc = self.subcritical_displacement()
+        if not isinstance(xc, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(xc))):
+            raise ValueError(
+                "the model has no sub-critical displacement x_c: with P_s = "
+                f"{self.subject.subglottal_pressure} dyne/cm² and F_sa = "
+                f"{self._aero().separation_force} dyne the aerodynamic force never falls to "
+                "F_sa (check P_s and F_sa)"
+            )
 
     # ----------------------------------------------------------------- terms
     def term(self, cls: type) -> AbstractTerm | None:
@@ -102,11 +143,13 @@ class VocalFoldModel(eqx.Module):
         return {name: self._where(name)(self) for name in self.parameter_units()}
 
     def set(self, **values) -> "VocalFoldModel":
-        """A copy with the named parameters replaced; traceable (usable inside jit/grad)."""
+        """A copy with the named parameters replaced; traceable (usable inside jit/grad).
+
+        Concrete values are checked (`check`): ``set(K=-1)`` raises ValueError."""
         model = self
         for name, value in values.items():
             model = eqx.tree_at(self._where(name), model, jnp.asarray(value, dtype=float))
-        return model
+        return model.check()
 
     def _where(self, name: str) -> Callable:
         if name in _MODEL_PARAMETERS:

@@ -57,8 +57,12 @@ def plot_convergence(result, ax=None):
     it = np.arange(len(pso)) + 1
     ax.loglog(it, pso, color="#457b9d", label="particle swarm")
     if len(lm) > 1:
-        ax.loglog(len(pso) + np.arange(len(lm)), np.maximum(lm, 1e-16), color="#e63946",
-                  label="Levenberg-Marquardt")  # fmt: skip
+        ax.loglog(
+            len(pso) + np.arange(len(lm)),
+            np.maximum(lm, 1e-16),
+            color="#e63946",
+            label="Levenberg-Marquardt",
+        )
     ax.set_xlabel("iteration")
     ax.set_ylabel("best NMSE")
     ax.legend(frameon=False, fontsize=8)
@@ -74,8 +78,13 @@ def plot_overlay(recording, result, ax=None, title: str | None = None):
     t = recording.time
     shade_phases(ax, t, sim.phase)
     ax.plot(t * 1e3, recording.area, color="#2a9d8f", lw=1.4, label="measured")
-    ax.plot(t * 1e3, np.clip(np.asarray(sim.area), 0, None), color="#c1121f", lw=1.2,
-            label=f"model (NMSE {result.nmse:.2%})")  # fmt: skip
+    ax.plot(
+        t * 1e3,
+        np.clip(np.asarray(sim.area), 0, None),
+        color="#c1121f",
+        lw=1.2,
+        label=f"model (NMSE {result.nmse:.2%})",
+    )
     ax.set_xlabel("time (ms)")
     ax.set_ylabel(f"glottal area ({recording.unit})")
     ax.set_title(title or recording.name)

@@ -10,15 +10,39 @@ FOLD_BY_SEX = {"male": (0.12, 1.6), "female": (0.075, 1.0)}
 
 #: Tables 3-4 and the inferred subglottal pressure, in the paper's units.
 PRESETS: dict[str, dict] = {
-    "N1": dict(sex="male", S_px_per_mm2=43.7988, K_N_per_m=396.6550, C_f_g_per_s=7536.2,
-               t_c_s=5.25e-3, P_s_dyne_per_cm2=11250.0),
-    "N2": dict(sex="male", S_px_per_mm2=70.7391, K_N_per_m=113.9710, C_f_g_per_s=11250.0,
-               t_c_s=4.0e-3, P_s_dyne_per_cm2=11250.0),
-    "N3": dict(sex="female", S_px_per_mm2=24.9649, K_N_per_m=671.1919, C_f_g_per_s=489.5168,
-               t_c_s=2.75e-3, P_s_dyne_per_cm2=3500.0),
-    "N4": dict(sex="female", S_px_per_mm2=29.6812, K_N_per_m=216.0464, C_f_g_per_s=829.8627,
-               t_c_s=1.5e-3, P_s_dyne_per_cm2=3500.0),
-}  # fmt: skip
+    "N1": dict(
+        sex="male",
+        S_px_per_mm2=43.7988,
+        K_N_per_m=396.6550,
+        C_f_g_per_s=7536.2,
+        t_c_s=5.25e-3,
+        P_s_dyne_per_cm2=11250.0,
+    ),
+    "N2": dict(
+        sex="male",
+        S_px_per_mm2=70.7391,
+        K_N_per_m=113.9710,
+        C_f_g_per_s=11250.0,
+        t_c_s=4.0e-3,
+        P_s_dyne_per_cm2=11250.0,
+    ),
+    "N3": dict(
+        sex="female",
+        S_px_per_mm2=24.9649,
+        K_N_per_m=671.1919,
+        C_f_g_per_s=489.5168,
+        t_c_s=2.75e-3,
+        P_s_dyne_per_cm2=3500.0,
+    ),
+    "N4": dict(
+        sex="female",
+        S_px_per_mm2=29.6812,
+        K_N_per_m=216.0464,
+        C_f_g_per_s=829.8627,
+        t_c_s=1.5e-3,
+        P_s_dyne_per_cm2=3500.0,
+    ),
+}
 
 #: The paper's reported normalised errors (%) for N1-N4 (Table 4), for reference only.
 PAPER_NORMALISED_ERROR_PERCENT = {"N1": 1.8685, "N2": 1.9959, "N3": 2.1039, "N4": 2.8136}
@@ -59,8 +83,11 @@ def paper_model(
     if mass_g is None or length_cm is None:
         raise ValueError("give sex='male'/'female', or both mass_g and length_cm")
     subject = Subject(mass=mass_g, length=length_cm, subglottal_pressure=P_s_dyne_per_cm2)
-    terms = [Elastic(K=K_N_per_m * DYNE_PER_CM_PER_N_PER_M), TanhDamping(C_f=C_f_g_per_s),
-             BernoulliForce()]  # fmt: skip
+    terms = [
+        Elastic(K=K_N_per_m * DYNE_PER_CM_PER_N_PER_M),
+        TanhDamping(C_f=C_f_g_per_s),
+        BernoulliForce(),
+    ]
     if flow_separation:
         terms.append(FlowSeparation())
     if closure_hold:

@@ -11,6 +11,7 @@ import numpy as np
 
 from .compare import plot_comparison
 from .diagnosis import Diagnosis
+from .io import save_figure, write_text
 from .recording import Recording
 from .workflow import Investigation, Round
 
@@ -36,8 +37,9 @@ def plot_candidates(d: Diagnosis, ax=None):
     rows = [r for r in d.table() if r["nmse_after"] is not None]
     names = [r["effect"] for r in rows]
     values = [max(r["nmse_after"], 1e-12) for r in rows]
-    colours = ["#2a9d8f" if r["needed"] else ("#e9c46a" if r["significant"] else "#adb5bd")
-               for r in rows]  # fmt: skip
+    colours = [
+        "#2a9d8f" if r["needed"] else ("#e9c46a" if r["significant"] else "#adb5bd") for r in rows
+    ]
     ax.barh(names[::-1], values[::-1], color=colours[::-1])
     ax.axvline(d.nmse_before, color="#c1121f", lw=1.2, label="before")
     if d.noise_nmse > 0:
@@ -61,12 +63,22 @@ def plot_rounds(study: Investigation, recording: Recording):
     ax = fig.add_subplot(grid[0, :])
     t = recording.time * 1e3
     ax.plot(t, recording.area, color="#2a9d8f", lw=1.4, label="measured")
-    ax.plot(t, study.first.fitted_gaw(recording), color="#adb5bd", lw=1.1,
-            label=f"paper model (NMSE {study.first.nmse:.2%})")  # fmt: skip
+    ax.plot(
+        t,
+        study.first.fitted_gaw(recording),
+        color="#adb5bd",
+        lw=1.1,
+        label=f"paper model (NMSE {study.first.nmse:.2%})",
+    )
     if study.final is not study.first:
         what = "+ " + " + ".join(study.added) if study.added else "paper model, refitted"
-        ax.plot(t, study.final.fitted_gaw(recording), color="#c1121f", lw=1.1,
-                label=f"{what} (NMSE {study.final.nmse:.2%})")  # fmt: skip
+        ax.plot(
+            t,
+            study.final.fitted_gaw(recording),
+            color="#c1121f",
+            lw=1.1,
+            label=f"{what} (NMSE {study.final.nmse:.2%})",
+        )
     ax.set_xlabel("time (ms)")
     ax.set_ylabel(f"area ({recording.unit})")
     ax.legend(frameon=False, fontsize=7, ncol=3, loc="upper right")
@@ -100,7 +112,7 @@ def _round_lines(i: int, r: Round, recording: Recording, folder: pathlib.Path, d
     c = d.comparison
     stem = f"{recording.name}_round{i}"
     fig = plot_comparison(c, f"round {i}: {' + '.join(_terms(r.fit)) or 'model'}")
-    fig.savefig(folder / f"{stem}_compare.png", dpi=dpi)
+    save_figure(fig, folder / f"{stem}_compare.png", dpi=dpi)
     plt.close(fig)
     lines = [
         f"## Round {i}: {_model_words(r.fit)}",
@@ -136,7 +148,7 @@ def _round_lines(i: int, r: Round, recording: Recording, folder: pathlib.Path, d
             if d.control is not None and d.control.nmse < r.fit.nmse
             else ""
         )
-        + ").",  # fmt: skip
+        + ").",
         "",
         "| rank | effect | score statistic | score p | NMSE after refit | error fall | "
         "refit p | needed | fitted values |",
@@ -146,14 +158,16 @@ def _round_lines(i: int, r: Round, recording: Recording, folder: pathlib.Path, d
         values = ", ".join(f"{k} = {_fmt(v)}" for k, v in row["values"].items())
         nmse = "-" if row["nmse_after"] is None else f"{row['nmse_after']:.3%}"
         fall = "-" if row["fall"] is None else f"{row['fall']:.0%}"
-        lines.append(f"| {row['rank']} | {row['effect']} | {row['statistic']:.3g} | "
-                     f"{_p(row['p_value'])} | {nmse} | {fall} | {_p(row['refit_p_value'])} | "
-                     f"{'**yes**' if row['needed'] else 'no'} | {values} |")  # fmt: skip
+        lines.append(
+            f"| {row['rank']} | {row['effect']} | {row['statistic']:.3g} | "
+            f"{_p(row['p_value'])} | {nmse} | {fall} | {_p(row['refit_p_value'])} | "
+            f"{'**yes**' if row['needed'] else 'no'} | {values} |"
+        )
     if d.refits:
         fig, ax = plt.subplots(figsize=(7, 0.5 + 0.45 * len(d.refits)))
         plot_candidates(d, ax=ax)
         fig.tight_layout()
-        fig.savefig(folder / f"{stem}_candidates.png", dpi=dpi)
+        save_figure(fig, folder / f"{stem}_candidates.png", dpi=dpi)
         plt.close(fig)
         lines += ["", f"![error each candidate reaches]({stem}_candidates.png)"]
     lines += ["", f"**Verdict.** {d.verdict}", ""]
@@ -225,11 +239,11 @@ def write_report(
         lines.append(f"| final | {_model_words(study.final)} | {study.final.nmse:.3%} | |")
     lines += ["", f"**Conclusion.** {study.rounds[-1].diagnosis.verdict}", ""]
     fig = plot_rounds(study, recording)
-    fig.savefig(folder / f"{recording.name}_rounds.png", dpi=dpi)
+    save_figure(fig, folder / f"{recording.name}_rounds.png", dpi=dpi)
     plt.close(fig)
     lines += [f"![fits, error per round, convergence]({recording.name}_rounds.png)", ""]
     for i, r in enumerate(study.rounds, 1):
         lines += _round_lines(i, r, recording, folder, dpi)
     path = folder / "report.md"
-    path.write_text("\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
     return path

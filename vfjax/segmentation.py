@@ -107,7 +107,7 @@ def _persistent_gap(tissue, open_grey, union, reach=2):
     the persistently dark pixels (brightness over time, ``tissue``, nearer the open glottis's
     grey level ``open_grey`` than the surrounding tissue's) that adjoin the glottis beyond one
     of its ends, no wider than it. A static shadow beside the glottis lies off its axis."""
-    if union.sum() < 5:
+    if union.sum() < 5 or union.all():
         return np.zeros_like(union)
     level = np.median(tissue[~union])
     static = (tissue < 0.5 * (level + open_grey)) & ~union
@@ -231,30 +231,81 @@ def segment_video(
     area = masks.sum(axis=(1, 2)).astype(float)
     if area.max() == 0:
         warnings.warn("no glottis found in any frame: the area is zero throughout", stacklevel=2)
-    return Segmentation(masks=masks, area=area, roi=(r0, r1, c0, c1), threshold=threshold,
-                        shifts=shifts)  # fmt: skip
+    return Segmentation(
+        masks=masks, area=area, roi=(r0, r1, c0, c1), threshold=threshold, shifts=shifts
+    )
+
+
+#: A segmented glottis covering more of the frame than this at its widest is no glottis: it
+#: covers a few percent of a laryngeal video's frame (0.6-1.9 % in the shared clips), while
+#: thresholding a video of noise marks 60-90 % of it.
+MAX_GLOTTIS_FRACTION = 0.25
+#: The least periodicity (`vfjax.descriptors.periodicity`) of a glottal area waveform: the
+#: shared clips and contour recordings give 0.97 to 1.0, noise 0.3 to 0.45.
+MIN_PERIODICITY = 0.7
 
 
 def video_to_recording(path, fps: float | None = None, **kwargs):
     """Read a video and segment it: a `Recording` of the glottal area (pixels) with its
-    masks. ``fps`` (Hz) is required when the file does not store it."""
+    masks. ``fps`` (Hz) is required when the file does not store it, and overrides the
+    file's rate (a container may store a playback rate, such as 30 fps)."""
     from .video import read_video
 
     video, file_fps = read_video(path)
-    return frames_to_recording(video, fps or file_fps, source=path, **kwargs)
+    return frames_to_recording(video, fps, source=path, file_fps=file_fps, **kwargs)
 
 
-def frames_to_recording(video, fps: float | None, source="video", **kwargs):
+def frames_to_recording(
+    video, fps: float | None, source="video", *, file_fps=None, check: bool = True, **kwargs
+):
     """Segment frames already in memory: a `Recording` of the glottal area (pixels) with its
-    masks; ``source`` (a path or a label) names it."""
+    masks; ``source`` (a path or a label) names it.
+
+    Arguments:
+        video: (frames, height, width) grey frames.
+        fps: the camera's frame rate (Hz); default ``file_fps``.
+        source: the file or a label, for the recording's name and the messages.
+        file_fps: the rate the file states, if any.
+        check: refuse a result that is no glottal area waveform: a dark region covering
+            more than `MAX_GLOTTIS_FRACTION` of the frame, or an area whose periodicity is
+            below `MIN_PERIODICITY` (a video of noise, or with no vibrating glottis).
+        kwargs: passed to `segment_video`.
+    """
     import pathlib
 
-    from .recording import Recording
+    from .descriptors import periodicity
+    from .recording import Recording, check_frame_rate
 
+    if fps is None and file_fps is None:
+        raise ValueError(f"{source}: the frame rate is not in the file; give fps (--fps)")
     if fps is None:
-        raise ValueError(f"{source}: the frame rate is not in the file; give fps")
+        fps = check_frame_rate(
+            file_fps,
+            f"{source} (the rate the file states)",
+            "; if the camera's rate differs, give it with --fps",
+        )
+    else:
+        fps = check_frame_rate(fps, f"{source}: the given frame rate")
     seg = segment_video(video, **kwargs)
+    if check:
+        frame = seg.masks.shape[1] * seg.masks.shape[2]
+        widest = float(seg.area.max()) / frame
+        if widest > MAX_GLOTTIS_FRACTION:
+            raise ValueError(
+                f"{source}: no glottis found: the dark moving region covers up to {widest:.0%} "
+                f"of the frame, where a glottis covers a few percent (is this a laryngeal "
+                "high-speed video?)"
+            )
+        if seg.area.max() > 0:
+            score, _ = periodicity(seg.area, fps)
+            if score < MIN_PERIODICITY:
+                raise ValueError(
+                    f"{source}: no vibrating glottis found: the segmented area is not "
+                    f"periodic (autocorrelation {score:.2f} at best over glottal periods of "
+                    f"1-20 ms, where a vibrating glottis gives 0.95 or more)"
+                )
     source = pathlib.Path(source)
     meta = {"source": source.name, "roi": list(map(int, seg.roi)), "threshold": seg.threshold}
-    return Recording(area=seg.area, fps=float(fps), unit="px", metadata=meta,
-                     name=source.stem, masks=seg.masks)  # fmt: skip
+    return Recording(
+        area=seg.area, fps=float(fps), unit="px", metadata=meta, name=source.stem, masks=seg.masks
+    )

@@ -1,26 +1,55 @@
-"""Models and fit results to and from plain JSON-ready dicts, without loss."""
+"""Models and fit results to and from plain JSON-ready dicts, without loss.
+
+A saved file is data, never code. Reading one validates it against its schema
+(``data_schema/fit_result.schema.json``) before anything is built, and resolves each term's
+class name only among vfjax's own terms (`BUILTIN_TERMS`) and the classes the caller passes
+on purpose (``terms=``): nothing is imported, and no other class is called.
+"""
 
 import dataclasses
-import importlib
+import json
+import pathlib
 
 import equinox as eqx
 import numpy as np
 
 from .model import VocalFoldModel
 from .subject import Subject
+from .terms import (
+    BernoulliForce,
+    ClosureHold,
+    ClosureJitter,
+    CubicStiffness,
+    Elastic,
+    FlowSeparation,
+    GlottalGap,
+    MucosalDelay,
+    PressureModulation,
+    TanhDamping,
+)
+from .terms.base import AbstractTerm
+
+#: The term classes a saved model may name without being passed to the reader.
+BUILTIN_TERMS: tuple[type[AbstractTerm], ...] = (
+    Elastic,
+    TanhDamping,
+    BernoulliForce,
+    FlowSeparation,
+    ClosureHold,
+    GlottalGap,
+    CubicStiffness,
+    PressureModulation,
+    MucosalDelay,
+    ClosureJitter,
+)
+#: Saved fit results larger than this (bytes) are refused unread.
+MAX_FILE_BYTES = 64 * 2**20
+SCHEMA_ID = "vfjax.fit_result/2"
+_READABLE_SCHEMAS = ("vfjax.fit_result/1", SCHEMA_ID)
 
 
-def _qualname(obj) -> str:
-    cls = type(obj)
+def _qualname(cls: type) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
-
-
-def _resolve(name: str):
-    module, _, qual = name.partition(":")
-    obj = importlib.import_module(module)
-    for part in qual.split("."):
-        obj = getattr(obj, part)
-    return obj
 
 
 def _value(v):
@@ -30,12 +59,54 @@ def _value(v):
 
 def _module_to_dict(m: eqx.Module) -> dict:
     fields = {f.name: _value(getattr(m, f.name)) for f in dataclasses.fields(m)}
-    return {"class": _qualname(m), "fields": fields}
+    return {"class": _qualname(type(m)), "fields": fields}
 
 
-def _module_from_dict(d: dict):
-    cls = _resolve(d["class"])
-    return cls(**d["fields"])
+def _term_class(name: str, allowed, where: str) -> type[AbstractTerm]:
+    """The allowed class a saved name refers to: by its full ``module:qualname``, else by
+    its class name alone (vfjax's own terms keep their names when modules move)."""
+    exact = [c for c in allowed if _qualname(c) == name]
+    if exact:
+        return exact[0]
+    short = name.rpartition(":")[2]
+    by_name = [c for c in allowed if c.__qualname__ == short]
+    if len(by_name) == 1:
+        return by_name[0]
+    known = ", ".join(sorted(c.__name__ for c in allowed))
+    raise ValueError(
+        f"{where}: refusing term class {name!r}: a saved model may name only vfjax's own "
+        f"terms ({known}) or classes passed on purpose, e.g. "
+        f"FitResult.from_json(path, terms=[{short or 'MyTerm'}])"
+    )
+
+
+def _numeric(value) -> bool:
+    if isinstance(value, bool):
+        return False
+    if isinstance(value, (int, float)):
+        return True
+    return isinstance(value, list) and all(_numeric(v) for v in value)
+
+
+def _build(cls, fields: dict, where: str):
+    if not isinstance(fields, dict):
+        raise ValueError(f"{where}: the fields of {cls.__name__} must be an object")
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(fields) - names)
+    if unknown:
+        raise ValueError(
+            f"{where}: {cls.__name__} has no field(s) {unknown}; its fields are {sorted(names)}"
+        )
+    bad = [k for k, v in fields.items() if not _numeric(v)]
+    if bad:
+        raise ValueError(
+            f"{where}: {cls.__name__}.{bad[0]} must be a number or a list of "
+            f"numbers, got {fields[bad[0]]!r:.60}"
+        )
+    try:
+        return cls(**fields)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{where}: cannot build {cls.__name__}: {err}") from None
 
 
 def model_to_dict(model: VocalFoldModel) -> dict:
@@ -47,25 +118,89 @@ def model_to_dict(model: VocalFoldModel) -> dict:
     }
 
 
-def model_from_dict(d: dict) -> VocalFoldModel:
-    """Inverse of `model_to_dict` (term classes are imported by their qualified names)."""
-    terms = tuple(_module_from_dict(t) for t in d["terms"])
-    return VocalFoldModel(subject=Subject(**d["subject"]), terms=terms, S=d["S"])
+def model_from_dict(d: dict, terms=(), where: str = "model") -> VocalFoldModel:
+    """Inverse of `model_to_dict`.
+
+    Arguments:
+        d: the dict.
+        terms: term classes besides `BUILTIN_TERMS` that ``d`` may name (your own effects).
+        where: what to call the source in error messages (a file name).
+    """
+    allowed = tuple(BUILTIN_TERMS) + tuple(terms)
+    for cls in terms:
+        if not (isinstance(cls, type) and issubclass(cls, AbstractTerm)):
+            raise TypeError(f"terms must be vfjax term classes, got {cls!r}")
+    if not isinstance(d, dict) or not {"subject", "terms", "S"} <= set(d):
+        raise ValueError(f"{where}: a model needs 'subject', 'terms' and 'S'")
+    if not isinstance(d["terms"], list):
+        raise ValueError(f"{where}: 'terms' must be a list")
+    built = []
+    for t in d["terms"]:
+        if not isinstance(t, dict) or not isinstance(t.get("class"), str):
+            raise ValueError(f"{where}: each term needs a 'class' name and 'fields'")
+        cls = _term_class(t["class"], allowed, where)
+        built.append(_build(cls, t.get("fields", {}), where))
+    subject = _build(Subject, d["subject"], where)
+    if not _numeric(d["S"]):
+        raise ValueError(f"{where}: S must be a number")
+    try:
+        return VocalFoldModel(subject=subject, terms=tuple(built), S=d["S"])
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{where}: invalid model: {err}") from None
 
 
 def fit_result_to_dict(result) -> dict:
     """A `FitResult` as a JSON-ready dict (schema: data_schema/fit_result.schema.json)."""
     out = {f.name: getattr(result, f.name) for f in dataclasses.fields(result)}
     out["model"] = None if result.model is None else model_to_dict(result.model)
-    out["schema"] = "vfjax.fit_result/1"
+    out["schema"] = SCHEMA_ID
     return out
 
 
-def fit_result_from_dict(d: dict):
-    """Inverse of `fit_result_to_dict`."""
+def validate_fit_result(d, where: str = "fit result") -> None:
+    """Check a saved fit result against ``data_schema/fit_result.schema.json``; the error
+    names the field and what is wrong with it."""
+    import jsonschema
+
+    schema_path = pathlib.Path(__file__).parent / "schemas" / "fit_result.schema.json"
+    schema = json.loads(schema_path.read_text())
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(d), key=str)
+    if errors:
+        lines = []
+        for err in errors[:5]:
+            field = ".".join(map(str, err.absolute_path)) or "(top level)"
+            lines.append(f"{field}: {err.message:.200}")
+        raise ValueError(f"{where}: not a vfjax fit result: " + "; ".join(lines))
+
+
+def fit_result_from_dict(d: dict, terms=(), where: str = "fit result"):
+    """Inverse of `fit_result_to_dict`: validated against the schema first; ``terms`` as
+    for `model_from_dict`."""
     from .fit import FitResult
 
+    validate_fit_result(d, where)
     d = dict(d)
-    d.pop("schema", None)
-    d["model"] = None if d.get("model") is None else model_from_dict(d["model"])
+    schema = d.pop("schema")
+    d.setdefault("status", "unknown" if schema != SCHEMA_ID else "successful")
+    d["model"] = None if d.get("model") is None else model_from_dict(d["model"], terms, where)
     return FitResult(**d)
+
+
+def read_fit_result(path, terms=()):
+    """A `FitResult` from a JSON file written by `FitResult.to_json`; see
+    `fit_result_from_dict`."""
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no fit result at {path}")
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise ValueError(
+            f"{path}: {path.stat().st_size} bytes, larger than a fit result can be "
+            f"({MAX_FILE_BYTES} bytes)"
+        )
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a JSON text file") from None
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: invalid JSON: {err}") from None
+    return fit_result_from_dict(d, terms, str(path))

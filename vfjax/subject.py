@@ -1,10 +1,12 @@
 """The subject's constants: vocal-fold geometry, mass, and the air that drives it."""
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import ArrayLike
 
-from ._validate import as_float, check_positive
+from ._validate import as_parameter, check_constraints, constraints_hold, positive
 
 
 class Subject(eqx.Module):
@@ -24,22 +26,30 @@ class Subject(eqx.Module):
         air_viscosity: dynamic viscosity mu (poise).
     """
 
-    mass: ArrayLike = eqx.field(default=0.12, converter=as_float)
-    length: ArrayLike = eqx.field(default=1.6, converter=as_float)
-    thickness: ArrayLike = eqx.field(default=0.32, converter=as_float)
-    rest_area: ArrayLike = eqx.field(default=0.05, converter=as_float)
-    subglottal_pressure: ArrayLike = eqx.field(default=11250.0, converter=as_float)
-    air_density: ArrayLike = eqx.field(default=1.3e-3, converter=as_float)
-    air_viscosity: ArrayLike = eqx.field(default=1.8e-4, converter=as_float)
+    mass: ArrayLike = eqx.field(default=0.12, converter=as_parameter)
+    length: ArrayLike = eqx.field(default=1.6, converter=as_parameter)
+    thickness: ArrayLike = eqx.field(default=0.32, converter=as_parameter)
+    rest_area: ArrayLike = eqx.field(default=0.05, converter=as_parameter)
+    subglottal_pressure: ArrayLike = eqx.field(default=11250.0, converter=as_parameter)
+    air_density: ArrayLike = eqx.field(default=1.3e-3, converter=as_parameter)
+    air_viscosity: ArrayLike = eqx.field(default=1.8e-4, converter=as_parameter)
+
+    constraints: ClassVar = (
+        positive("mass", "M (mass)", "g"),
+        positive("length", "l (length)", "cm"),
+        positive("thickness", "d (thickness)", "cm"),
+        positive("rest_area", "A_g0 (rest_area)", "cm²"),
+        positive("subglottal_pressure", "P_s (subglottal_pressure)", "dyne/cm²"),
+        positive("air_density", "air_density", "g/cm³"),
+        positive("air_viscosity", "air_viscosity", "poise"),
+    )
 
     def __check_init__(self):
-        check_positive("mass", self.mass, "g")
-        check_positive("length", self.length, "cm")
-        check_positive("thickness", self.thickness, "cm")
-        check_positive("rest_area", self.rest_area, "cm²")
-        check_positive("subglottal_pressure", self.subglottal_pressure, "dyne/cm²")
-        check_positive("air_density", self.air_density, "g/cm³")
-        check_positive("air_viscosity", self.air_viscosity, "poise")
+        check_constraints(self)
+
+    def is_valid(self):
+        """Whether every constant is admissible (a traced boolean)."""
+        return constraints_hold(self)
 
     @property
     def contact_displacement(self):

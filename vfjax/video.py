@@ -81,8 +81,11 @@ def read_masks(folder) -> np.ndarray:
     from skimage import io
 
     folder = pathlib.Path(folder)
-    files = [(int(m.group(1)), p) for p in folder.glob("*_seg.png")
-             if (m := re.fullmatch(r"(\d+)_seg\.png", p.name))]  # fmt: skip
+    files = [
+        (int(m.group(1)), p)
+        for p in folder.glob("*_seg.png")
+        if (m := re.fullmatch(r"(\d+)_seg\.png", p.name))
+    ]
     if not files:
         raise ValueError(f"{folder}: no masks named like N_seg.png")
     files.sort()

@@ -61,8 +61,9 @@ class Investigation:
         return [r.added for r in self.rounds if r.added]
 
 
-def extend_from(diagnosis: Diagnosis, recording: Recording, effect: str | None = None,
-                iterations: int = 40) -> FitResult:  # fmt: skip
+def extend_from(
+    diagnosis: Diagnosis, recording: Recording, effect: str | None = None, iterations: int = 40
+) -> FitResult:
     """The fit with ``effect`` (default: the diagnosis's best): a full fit (swarm + LM) of the
     fitted parameters and the effect's, warm-started from the diagnosis's quick refit; the
     better of the two is returned."""
@@ -70,12 +71,21 @@ def extend_from(diagnosis: Diagnosis, recording: Recording, effect: str | None =
     if name is None:
         raise ValueError("the diagnosis found no effect to add; name one with effect=...")
     if name not in diagnosis.refits:
-        raise ValueError(f"no refit of {name!r} in this diagnosis (refit=False, or not a "
-                         f"candidate); candidates: {sorted(diagnosis.refits)}")  # fmt: skip
+        raise ValueError(
+            f"no refit of {name!r} in this diagnosis (refit=False, or not a "
+            f"candidate); candidates: {sorted(diagnosis.refits)}"
+        )
     start = diagnosis.refits[name].result
     s = start.settings
-    polished = fit(start.model, recording, params=tuple(start.params), iterations=iterations,
-                   warmup=s["warmup"], substeps=s["substeps"], progress=False)  # fmt: skip
+    polished = fit(
+        start.model,
+        recording,
+        params=tuple(start.params),
+        iterations=iterations,
+        warmup=s["warmup"],
+        substeps=s["substeps"],
+        progress=False,
+    )
     return polished if polished.nmse < start.nmse else start
 
 
@@ -117,8 +127,15 @@ def investigate(
             if candidates is None
             else [c for c in candidates if not current.model.has(_kind(c))]
         )
-        d = diagnose(current, recording, remaining, alpha=alpha, min_fall=min_fall,
-                     confirm=confirm, progress=progress)  # fmt: skip
+        d = diagnose(
+            current,
+            recording,
+            remaining,
+            alpha=alpha,
+            min_fall=min_fall,
+            confirm=confirm,
+            progress=progress,
+        )
         if progress:
             print(d.verdict)
         if d.best is None or len(done) >= rounds:

@@ -19,13 +19,26 @@ from collections.abc import Callable
 from typing import ClassVar
 
 import equinox as eqx
+import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool
+
+from .._validate import Constraint, check_constraints, constraints_hold
 
 
 class AbstractTerm(eqx.Module):
-    """Base of every model term. ``parameters`` maps public names to ``(field, unit)``."""
+    """Base of every model term. ``parameters`` maps public names to ``(field, unit)``.
+
+    Parameter fields must hold floating-point arrays: declare them with
+    ``eqx.field(converter=vfjax.as_parameter)``. An integer leaf (``jnp.asarray(1)``) is a
+    constant to `eqx.filter_grad`, which would silently return no gradient for it, so a term
+    built with one is refused.
+    """
 
     parameters: ClassVar[dict[str, tuple[str, str]]] = {}
+    #: The admissible values of the term's fields (`vfjax.Constraint`): checked when the term
+    #: is built or changed with concrete values, and by `vfjax.simulate` (its
+    #: ``invalid_parameters`` result) when traced.
+    constraints: ClassVar[tuple[Constraint, ...]] = ()
     #: The parameter values that switch the term off while keeping it in the model
     #: (used by the diagnosis's score test); empty when removing the term is the only way.
     off_values: ClassVar[dict[str, float]] = {}
@@ -47,6 +60,22 @@ class AbstractTerm(eqx.Module):
     #: effect has a memory longer than the default 20 ms (a slow modulation) must start early
     #: enough for its history to be in the state at the first frame.
     min_warmup: ClassVar[float] = 0.0
+
+    def __check_init__(self):
+        for name, (field, unit) in self.parameters.items():
+            value = getattr(self, field)
+            dtype = jnp.result_type(value)
+            if not jnp.issubdtype(dtype, jnp.inexact):
+                raise TypeError(
+                    f"{type(self).__name__}.{field} (parameter {name}, {unit}) is a {dtype} "
+                    "array: gradients skip non-float leaves. Declare the field with "
+                    "eqx.field(converter=vfjax.as_parameter)"
+                )
+        check_constraints(self)
+
+    def is_valid(self):
+        """Whether every field meets the term's ``constraints`` (a traced boolean)."""
+        return constraints_hold(self)
 
     @classmethod
     def guess(cls, recording) -> dict[str, float]:

@@ -19,7 +19,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from .._validate import as_float, check_finite, check_in_range, check_nonnegative
+from .._validate import as_parameter, finite, in_range, nonnegative
 from .base import AbstractForce, AbstractObservation, AbstractPressure, Context
 
 
@@ -31,13 +31,12 @@ class GlottalGap(AbstractObservation):
         a_gap: gap area (cm²), >= 0.
     """
 
-    a_gap: ArrayLike = eqx.field(default=0.0, converter=as_float)
+    a_gap: ArrayLike = eqx.field(default=0.0, converter=as_parameter)
     parameters: ClassVar = {"a_gap": ("a_gap", "cm²")}
     off_values: ClassVar = {"a_gap": 0.0}
     one_sided: ClassVar = True
 
-    def __check_init__(self):
-        check_nonnegative("a_gap (glottal gap area)", self.a_gap, "cm²")
+    constraints: ClassVar = (nonnegative("a_gap", "a_gap (glottal gap area)", "cm²"),)
 
     def observe(self, t, area, displacement_at, length) -> Array:
         return area + self.a_gap
@@ -50,12 +49,11 @@ class CubicStiffness(AbstractForce):
         eta: cubic stiffness coefficient (1/cm²).
     """
 
-    eta: ArrayLike = eqx.field(default=0.0, converter=as_float)
+    eta: ArrayLike = eqx.field(default=0.0, converter=as_parameter)
     parameters: ClassVar = {"eta": ("eta", "1/cm²")}
     off_values: ClassVar = {"eta": 0.0}
 
-    def __check_init__(self):
-        check_finite("eta (cubic stiffness)", self.eta, "1/cm²")
+    constraints: ClassVar = (finite("eta", "eta (cubic stiffness)", "1/cm²"),)
 
     def force(self, ctx: Context) -> Array:
         return -ctx.stiffness * self.eta * ctx.x**3
@@ -74,9 +72,9 @@ class PressureModulation(AbstractPressure):
             phase at the recording's first frame is phi + 2 pi f_m time_shift.
     """
 
-    a_pm: ArrayLike = eqx.field(default=0.0, converter=as_float)
-    f_m: ArrayLike = eqx.field(default=5.0, converter=as_float)
-    phi: ArrayLike = eqx.field(default=0.0, converter=as_float)
+    a_pm: ArrayLike = eqx.field(default=0.0, converter=as_parameter)
+    f_m: ArrayLike = eqx.field(default=5.0, converter=as_parameter)
+    phi: ArrayLike = eqx.field(default=0.0, converter=as_parameter)
     parameters: ClassVar = {"a_pm": ("a_pm", "1"), "f_m": ("f_m", "Hz"), "phi": ("phi", "rad")}
     off_values: ClassVar = {"a_pm": 0.0}
     # f_m and phi do not exist at a = 0: the score test searches f_m on a grid and tests the
@@ -90,10 +88,11 @@ class PressureModulation(AbstractPressure):
     # 9.9e-2 from 20 ms
     min_warmup: ClassVar = 0.1
 
-    def __check_init__(self):
-        check_in_range("a_pm (modulation depth)", self.a_pm, 0.0, 1.0)
-        check_nonnegative("f_m (modulation frequency)", self.f_m, "Hz")
-        check_finite("phi (modulation phase)", self.phi, "rad")
+    constraints: ClassVar = (
+        in_range("a_pm", "a_pm (modulation depth)", 0.0, 1.0),
+        nonnegative("f_m", "f_m (modulation frequency)", "Hz"),
+        finite("phi", "phi (modulation phase)", "rad"),
+    )
 
     def pressure(self, t, mean_pressure) -> Array:
         return mean_pressure * (1.0 + self.a_pm * jnp.sin(2.0 * jnp.pi * self.f_m * t + self.phi))
@@ -107,7 +106,7 @@ class MucosalDelay(AbstractObservation):
         tau: delay of the upper margin (s), >= 0.
     """
 
-    tau: ArrayLike = eqx.field(default=0.0, converter=as_float)
+    tau: ArrayLike = eqx.field(default=0.0, converter=as_parameter)
     parameters: ClassVar = {"tau": ("tau", "s")}
     off_values: ClassVar = {"tau": 0.0}
     one_sided: ClassVar = True
@@ -115,8 +114,7 @@ class MucosalDelay(AbstractObservation):
     score_point: ClassVar = {"tau": 1e-9}
     needs_history: ClassVar[bool] = True
 
-    def __check_init__(self):
-        check_nonnegative("tau (mucosal delay)", self.tau, "s")
+    constraints: ClassVar = (nonnegative("tau", "tau (mucosal delay)", "s"),)
 
     def observe(self, t, area, displacement_at: Callable, length) -> Array:
         now = displacement_at(t)

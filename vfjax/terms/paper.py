@@ -6,7 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from .._validate import as_float, check_finite, check_nonnegative, check_positive
+from .._validate import as_parameter, finite, nonnegative, positive
 from .base import AbstractForce, AbstractTerm, Context
 
 
@@ -17,11 +17,10 @@ class Elastic(AbstractForce):
         K: stiffness (dyne/cm). The paper's Table 4 gives N/m: use `Elastic.from_n_per_m`.
     """
 
-    K: ArrayLike = eqx.field(converter=as_float)
+    K: ArrayLike = eqx.field(converter=as_parameter)
     parameters: ClassVar = {"K": ("K", "dyne/cm")}
 
-    def __check_init__(self):
-        check_positive("K (stiffness)", self.K, "dyne/cm")
+    constraints: ClassVar = (positive("K", "K (stiffness)", "dyne/cm"),)
 
     @classmethod
     def from_n_per_m(cls, K_n_per_m: float) -> "Elastic":
@@ -45,14 +44,17 @@ class TanhDamping(AbstractForce):
         length_scale: displacement scale of the tanh (cm), a static constant.
     """
 
-    C_f: ArrayLike = eqx.field(converter=as_float)
-    C_min: ArrayLike = eqx.field(default=0.0, converter=as_float)
+    C_f: ArrayLike = eqx.field(converter=as_parameter)
+    C_min: ArrayLike = eqx.field(default=0.0, converter=as_parameter)
     length_scale: float = eqx.field(default=1.0, static=True)
     parameters: ClassVar = {"C_f": ("C_f", "g/s"), "C_min": ("C_min", "g/s")}
 
+    constraints: ClassVar = (
+        nonnegative("C_f", "C_f (damping amplification)", "g/s"),
+        nonnegative("C_min", "C_min (minimum damping)", "g/s"),
+    )
+
     def __check_init__(self):
-        check_nonnegative("C_f (damping amplification)", self.C_f, "g/s")
-        check_nonnegative("C_min (minimum damping)", self.C_min, "g/s")
         if not self.length_scale > 0:
             raise ValueError(f"length_scale must be > 0 cm, got {self.length_scale}")
 
@@ -83,17 +85,18 @@ class BernoulliForce(AbstractForce):
         separation_force: F_s.a., the aerodynamic force that defines x_c (dyne); 0 in Table 2.
     """
 
-    entrance_loss: ArrayLike = eqx.field(default=0.875, converter=as_float)
-    inlet_coefficient: ArrayLike = eqx.field(default=1.37, converter=as_float)
-    outlet_coefficient: ArrayLike = eqx.field(default=0.5, converter=as_float)
-    separation_force: ArrayLike = eqx.field(default=0.0, converter=as_float)
+    entrance_loss: ArrayLike = eqx.field(default=0.875, converter=as_parameter)
+    inlet_coefficient: ArrayLike = eqx.field(default=1.37, converter=as_parameter)
+    outlet_coefficient: ArrayLike = eqx.field(default=0.5, converter=as_parameter)
+    separation_force: ArrayLike = eqx.field(default=0.0, converter=as_parameter)
     parameters: ClassVar = {"F_sa": ("separation_force", "dyne")}
 
-    def __check_init__(self):
-        check_positive("entrance_loss", self.entrance_loss)
-        check_positive("inlet_coefficient", self.inlet_coefficient)
-        check_finite("outlet_coefficient", self.outlet_coefficient)
-        check_finite("F_sa (separation_force)", self.separation_force, "dyne")
+    constraints: ClassVar = (
+        positive("entrance_loss", "entrance_loss"),
+        positive("inlet_coefficient", "inlet_coefficient"),
+        finite("outlet_coefficient", "outlet_coefficient"),
+        finite("separation_force", "F_sa (separation_force)", "dyne"),
+    )
 
     def particle_velocity(self, area, pressure, rho, mu, thickness, length):
         """Mean air velocity u = Q / A in the glottis (cm/s) for area ``area`` (cm²)."""
@@ -132,13 +135,12 @@ class FlowSeparation(AbstractForce):
             diagnosis's off-value); or remove the term.
     """
 
-    fs_strength: ArrayLike = eqx.field(default=1.0, converter=as_float)
+    fs_strength: ArrayLike = eqx.field(default=1.0, converter=as_parameter)
     parameters: ClassVar = {"fs_strength": ("fs_strength", "1")}
     off_values: ClassVar = {"fs_strength": 0.0}
     one_sided: ClassVar = True
 
-    def __check_init__(self):
-        check_nonnegative("fs_strength (flow-separation strength)", self.fs_strength)
+    constraints: ClassVar = (nonnegative("fs_strength", "fs_strength (flow-separation strength)"),)
 
     def force(self, ctx: Context) -> Array:
         share = (ctx.x - ctx.xc) / (ctx.x0 - ctx.xc)
@@ -158,7 +160,7 @@ class ClosureHold(AbstractTerm):
         t_c: closure duration (s).
     """
 
-    t_c: ArrayLike = eqx.field(converter=as_float)
+    t_c: ArrayLike = eqx.field(converter=as_parameter)
     parameters: ClassVar = {"t_c": ("t_c", "s")}
     #: a hold of zero length leaves the motion unchanged: the hold's off-value
     off_values: ClassVar = {"t_c": 0.0}
@@ -172,5 +174,4 @@ class ClosureHold(AbstractTerm):
         t_c = estimate_closure_duration(recording)
         return {} if t_c is None else {"t_c": t_c}
 
-    def __check_init__(self):
-        check_nonnegative("t_c (closure duration)", self.t_c, "s")
+    constraints: ClassVar = (nonnegative("t_c", "t_c (closure duration)", "s"),)

@@ -6,12 +6,14 @@
   test data, and it is the variability the diagnosis must not mistake for a missing effect.
 """
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from .._validate import as_float, check_nonnegative, check_positive
+from .._validate import as_parameter, check_nonnegative, check_positive, positive
 from .base import AbstractHoldVariability
 
 
@@ -28,11 +30,12 @@ class ClosureJitter(AbstractHoldVariability):
         slot: length of one slot (s), about one glottal period.
     """
 
-    factors: Array = eqx.field(converter=as_float)
+    factors: Array = eqx.field(converter=as_parameter)
     slot: float = eqx.field(static=True)
 
+    constraints: ClassVar = (positive("factors", "factors (closure-duration factors)"),)
+
     def __check_init__(self):
-        check_positive("factors (closure-duration factors)", self.factors)
         check_positive("slot (jitter slot length)", self.slot, "s")
         if jnp.ndim(self.factors) != 1:
             raise ValueError("factors must be a 1-D array (one factor per slot)")
