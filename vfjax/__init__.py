@@ -21,10 +21,10 @@ from . import (  # noqa: E402
     video,
     workflow,
 )
+from ._validate import Constraint, as_parameter  # noqa: E402
 from .cost import nmse  # noqa: E402
 from .diagnosis import Candidate, Diagnosis, diagnose, score_tests  # noqa: E402
 from .fit import FitResult, default_warmup, fit, fit_many, initial_model  # noqa: E402
-from ._validate import Constraint, as_parameter  # noqa: E402
 from .integrator import (  # noqa: E402
     DEFAULT_SUBSTEPS,
     RESULTS,

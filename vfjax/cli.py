@@ -39,8 +39,11 @@ def cmd_run(args) -> int:
     matplotlib.use("Agg")  # files only, no window
     import matplotlib.pyplot as plt
 
-    from .io import staged_output
+    from .io import check_output_folder, staged_output
+    from .recording import check_frame_rate
 
+    check_frame_rate(args.fps, "--fps")
+    check_output_folder(args.out, args.force)
     with staged_output(args.out, args.force) as out:
         code = _run(args, out, plt)
     if code == 0:
@@ -114,7 +117,8 @@ def _run(args, out, plt) -> int:
         lines.append(f"| {n} | {v:.6g} | {float(truth[n]):.6g} | {result.units[n]} |")
     lines += [
         "",
-        f"NMSE {result.nmse:.3e}; optimistix: {result.optimistix_result}; "
+        f"NMSE {result.nmse:.3e} (status: {result.status}); "
+        f"optimistix: {result.optimistix_result}; "
         f"{result.n_simulations} simulations; {result.timings['total_s']:.1f} s "
         f"(PSO {result.timings['pso_s']:.1f} s, LM {result.timings['lm_s']:.1f} s, "
         "compilation included).",
@@ -197,9 +201,11 @@ def _diagnosis_section(out):
 def _load_input(args):
     """The recording named on the command line: a GAW table with its sidecar, or a contour
     file (``.txt``, with --fps)."""
-    from .recording import load_contours, load_recording
+    from .recording import check_frame_rate, load_contours, load_recording
 
     path = pathlib.Path(args.recording)
+    if args.fps is not None:
+        check_frame_rate(args.fps, "--fps")
     if path.suffix.lower() == ".txt":
         if args.fps is None:
             raise ValueError(f"{path.name}: a contour file carries no frame rate; give --fps")
@@ -227,10 +233,11 @@ def cmd_diagnose(args) -> int:
 
     matplotlib.use("Agg")
     from .fit import initial_model
-    from .io import staged_output
+    from .io import check_output_folder, staged_output
     from .report import write_report
     from .workflow import investigate
 
+    check_output_folder(args.out, args.force)
     rec = _load_input(args)
     model = initial_model(rec, template=args.start)
     with staged_output(args.out, args.force) as out:
@@ -256,8 +263,9 @@ def cmd_fit(args) -> int:
 
     matplotlib.use("Agg")
     from .fit import initial_model
-    from .io import staged_output
+    from .io import check_output_folder, staged_output
 
+    check_output_folder(args.out, args.force)
     rec = _load_input(args)
     model = initial_model(rec, template=args.start)
     with staged_output(args.out, args.force) as out:
@@ -280,9 +288,12 @@ def cmd_extract(args) -> int:
     import matplotlib.pyplot as plt
 
     from .io import check_output_file, save_figure, write_recording
+    from .recording import check_frame_rate
     from .segmentation import frames_to_recording
     from .video import read_video
 
+    if args.fps is not None:
+        check_frame_rate(args.fps, "--fps")
     table = check_output_file(args.output, args.force)
     preview = table.with_suffix(".png")
     for extra in (table.with_suffix(".json"), preview):

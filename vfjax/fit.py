@@ -382,8 +382,8 @@ def estimate_closure_duration(recording: Recording, levels=(0.1, 0.2)) -> float 
             w.append(crossing(j, level, down=False) - crossing(i, level, down=True))
         if len(w) == 2:
             widths.append(2 * w[0] - w[1])
-    if not widths:
-        return None
+    if not widths or max(widths) <= 0:
+        return None  # no closed phase long enough to measure
     return float(np.max(widths)) / recording.fps
 
 
@@ -834,15 +834,18 @@ _EDGE = 1e-3  # a value within this fraction of its box's width from an edge is 
 
 
 def _at_edge(value, low, high, floor=None) -> bool:
-    """Whether ``value`` lies at or beyond an edge of [low, high] (in log coordinates when
-    both are > 0); a lower edge at the physical ``floor`` (a gap of 0) does not count."""
+    """Whether ``value`` ended on an edge of its search box [low, high] (within `_EDGE` of
+    the box's width, in log coordinates when both are > 0): where the swarm's search stopped
+    it and the polish could not move it away. A lower edge at the physical ``floor`` (a gap
+    of 0) does not count, and neither does a value the polish carried well beyond the box (a
+    local optimum of its own, outside the swarm's reach)."""
     if low > 0 and high > 0 and value > 0:
         value, low_c, high_c = math.log(value), math.log(low), math.log(high)
     else:
         low_c, high_c = low, high
     margin = _EDGE * (high_c - low_c)
-    at_low = value <= low_c + margin and not (floor is not None and low <= floor)
-    return at_low or value >= high_c - margin
+    at_low = abs(value - low_c) <= margin and not (floor is not None and low <= floor)
+    return at_low or abs(value - high_c) <= margin
 
 
 def _status(problem, params, values, bounds, nmse) -> tuple[str, float]:

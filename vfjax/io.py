@@ -69,14 +69,8 @@ def check_output_file(path, force: bool) -> pathlib.Path:
     return path
 
 
-@contextlib.contextmanager
-def staged_output(folder, force: bool = False):
-    """A staging folder for one run's outputs, moved into ``folder`` when the block ends.
-
-    ``folder`` must be missing or empty unless ``force``; with ``force`` the run's files
-    replace their namesakes (other files stay). The staging folder is a hidden sibling of
-    ``folder``; on an error or an interrupt it is removed and ``folder`` is left as it was.
-    """
+def check_output_folder(folder, force: bool) -> pathlib.Path:
+    """``folder``, or ValueError unless it is missing, empty, or ``force`` is given."""
     folder = pathlib.Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"{folder} exists and is not a folder")
@@ -86,6 +80,18 @@ def staged_output(folder, force: bool = False):
             f"output folder {folder} is not empty ({n} entries): use --force to "
             "overwrite its files, or name another folder with --out"
         )
+    return folder
+
+
+@contextlib.contextmanager
+def staged_output(folder, force: bool = False):
+    """A staging folder for one run's outputs, moved into ``folder`` when the block ends.
+
+    ``folder`` must be missing or empty unless ``force``; with ``force`` the run's files
+    replace their namesakes (other files stay). The staging folder is a hidden sibling of
+    ``folder``; on an error or an interrupt it is removed and ``folder`` is left as it was.
+    """
+    folder = check_output_folder(folder, force)
     folder.parent.mkdir(parents=True, exist_ok=True)
     stage = pathlib.Path(tempfile.mkdtemp(prefix=f".{folder.name}.partial-", dir=folder.parent))
     try:

@@ -238,6 +238,11 @@ def write_report(
     if study.final is not study.rounds[-1].fit:
         lines.append(f"| final | {_model_words(study.final)} | {study.final.nmse:.3%} | |")
     lines += ["", f"**Conclusion.** {study.rounds[-1].diagnosis.verdict}", ""]
+    failed = [(i, r.fit) for i, r in enumerate(study.rounds, 1) if r.fit.failed]
+    if study.final.failed:
+        failed.append(("final", study.final))
+    for which, result in failed:
+        lines += [f"**Fit {which} failed.** {result.status_message()}", ""]
     fig = plot_rounds(study, recording)
     save_figure(fig, folder / f"{recording.name}_rounds.png", dpi=dpi)
     plt.close(fig)

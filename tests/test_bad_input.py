@@ -1,0 +1,623 @@
+"""Bad and unusual input, through the command line and the Python API: each case gets a clear
+message naming the problem (CLI: exit code 2, one line on stderr, no traceback), never a
+silent success, a crash, or code run from a data file."""
+
+import json
+import logging
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+import warnings
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import vfjax
+from vfjax.recording import load_contours, load_recording, load_segments
+
+FPS = 4000.0
+
+
+def _cli(*args, cwd, timeout=300):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.run(
+        [sys.executable, "-m", "vfjax", *map(str, args)],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+    )
+
+
+def _gaw(n=201):
+    """A periodic, GAW-like area (px): 10 cycles of a half-rectified sine."""
+    t = np.arange(n) / FPS
+    return np.round(np.clip(np.sin(2 * np.pi * 200.0 * t), 0, None) * 300.0)
+
+
+def _table(folder, name="rec", rows=None, sidecar=None, header="frame,time_s,area_px"):
+    """A GAW table and its sidecar; ``rows`` default to the good 201 frames."""
+    if rows is None:
+        rows = [f"{i},{i / FPS:.8f},{a:g}" for i, a in enumerate(_gaw())]
+    csv = pathlib.Path(folder) / f"{name}.csv"
+    csv.write_text("\n".join([header, *rows]) + "\n")
+    side = {"fps": FPS, "area_unit": "px"} if sidecar is None else sidecar
+    text = side if isinstance(side, str) else json.dumps(side)
+    csv.with_suffix(".json").write_text(text)
+    return csv
+
+
+def _good_rows():
+    return [f"{i},{i / FPS:.8f},{a:g}" for i, a in enumerate(_gaw())]
+
+
+# --------------------------------------------------------------------------- the CLI table
+def _write_case(tmp, case):
+    """Build the files of one CLI case; returns the command's arguments."""
+    rows = _good_rows()
+    if case == "fps_tiny":
+        return ["fit", _table(tmp, sidecar={"fps": 0.001, "area_unit": "px"})]
+    if case == "fps_huge":
+        return ["fit", _table(tmp, sidecar={"fps": 1e12, "area_unit": "px"})]
+    if case == "fps_zero_option":
+        return ["fit", _table(tmp), "--fps", "0"]
+    if case == "frames_missing":
+        return ["fit", _table(tmp, rows=rows[:50] + rows[80:])]
+    if case == "time_disagrees":
+        rows = [f"{i},{i / 2000.0:.8f},{a:g}" for i, a in enumerate(_gaw())]
+        return ["fit", _table(tmp, rows=rows)]
+    if case == "repeated_frame":
+        return ["fit", _table(tmp, rows=rows[:10] + rows[9:])]
+    if case == "invalid_json":
+        return ["fit", _table(tmp, sidecar='{"fps": 4000, "area_unit": ')]
+    if case == "sidecar_not_object":
+        return ["fit", _table(tmp, sidecar="[4000]")]
+    if case == "binary_table":
+        csv = _table(tmp)
+        csv.write_bytes(bytes(range(256)) * 8)
+        return ["fit", csv]
+    if case == "latin1_table":
+        csv = _table(tmp)
+        csv.write_bytes("frame,area_px\n0,1\n1,\xe9\n".encode("latin-1"))
+        return ["fit", csv]
+    if case == "negative_area":
+        return ["fit", _table(tmp, rows=rows[:5] + ["5,0.00125,-3"] + rows[6:])]
+    if case == "nan_area":
+        return ["fit", _table(tmp, rows=rows[:5] + ["5,0.00125,nan"] + rows[6:])]
+    if case == "non_numeric":
+        return ["fit", _table(tmp, rows=rows[:5] + ["5,0.00125,abc"] + rows[6:])]
+    if case == "no_area_column":
+        return ["fit", _table(tmp, header="frame,time_s,volume")]
+    if case == "ragged_row":
+        return ["fit", _table(tmp, rows=rows[:5] + ["5,0.00125"] + rows[6:])]
+    if case == "missing_sidecar":
+        csv = _table(tmp)
+        csv.with_suffix(".json").unlink()
+        return ["fit", csv]
+    if case == "missing_file":
+        return ["fit", pathlib.Path(tmp) / "nothing.csv"]
+    if case == "unknown_unit":
+        return ["fit", _table(tmp, sidecar={"fps": FPS, "area_unit": "inch2"})]
+    if case == "empty_contour":
+        path = pathlib.Path(tmp) / "empty_segdata.txt"
+        path.write_text("")
+        return ["fit", path, "--fps", "8000"]
+    if case == "contour_without_fps":
+        path = pathlib.Path(tmp) / "c_segdata.txt"
+        path.write_text("# c\n1 2\n3 4\n")
+        return ["diagnose", path]
+    if case == "output_not_empty":
+        out = pathlib.Path(tmp) / "out"
+        out.mkdir()
+        (out / "old_fit.json").write_text("{}")
+        return ["fit", _table(tmp), "--out", out]
+    if case == "output_file_exists":
+        (pathlib.Path(tmp) / "gaw.csv").write_text("x")
+        return ["simulate", "N1", "-o", pathlib.Path(tmp) / "gaw.csv"]
+    if case == "noise_video":
+        path = pathlib.Path(tmp) / "noise.npy"
+        rng = np.random.default_rng(0)
+        np.save(path, rng.integers(0, 255, (100, 64, 64)).astype(np.uint8))
+        return ["extract", path, "--fps", "4000", "-o", pathlib.Path(tmp) / "g.csv"]
+    if case == "video_without_fps":
+        path = pathlib.Path(tmp) / "v.npy"
+        np.save(path, np.zeros((4, 8, 8), np.uint8))
+        return ["extract", path, "-o", pathlib.Path(tmp) / "g.csv"]
+    if case == "playback_rate_video":
+        import imageio.v3 as iio
+
+        path = pathlib.Path(tmp) / "v.avi"
+        frames = np.zeros((8, 32, 32, 3), np.uint8)
+        iio.imwrite(path, frames, plugin="pyav", codec="ffv1", fps=30)
+        return ["extract", path, "-o", pathlib.Path(tmp) / "g.csv"]
+    if case == "simulate_bad_frames":
+        return ["simulate", "N1", "--frames", "0", "-o", pathlib.Path(tmp) / "s.csv"]
+    if case == "simulate_low_fps":
+        return ["simulate", "N1", "--fps", "30", "-o", pathlib.Path(tmp) / "s.csv"]
+    raise KeyError(case)
+
+
+CLI_CASES = {  # case: what the one-line message must say
+    "fps_tiny": r"rec\.json: fps: a frame rate of 0\.001 Hz .* expected 1000 to 100000 Hz",
+    "fps_huge": r"a frame rate of 1e\+12 Hz .* expected 1000 to 100000 Hz",
+    "fps_zero_option": r"--fps: a frame rate of 0 Hz",
+    "frames_missing": r"rec\.csv: frames missing: frame 49 is followed by frame 80",
+    "time_disagrees": r"rec\.csv: time_s disagrees with the sidecar's fps of 4000 Hz",
+    "repeated_frame": r"rec\.csv: frame 9 appears more than once",
+    "invalid_json": r"rec\.json: invalid JSON",
+    "sidecar_not_object": r"rec\.json: a sidecar must be a JSON object",
+    "binary_table": r"rec\.csv: a binary file",
+    "latin1_table": r"rec\.csv: not a GAW table .* in UTF-8",
+    "negative_area": r"rec\.csv: area is negative at frames \[5\]",
+    "nan_area": r"rec\.csv: area has NaN or infinite values at frames \[5\]",
+    "non_numeric": r"rec\.csv: non-numeric value 'abc' in column area_px, line 7",
+    "no_area_column": r"rec\.csv: no area column",
+    "ragged_row": r"rec\.csv: line 7 has 2 fields",
+    "missing_sidecar": r"no sidecar .*rec\.json",
+    "missing_file": r"no recording at .*nothing\.csv",
+    "unknown_unit": r"area_unit: 'inch2' is not one of",
+    "empty_contour": r"empty_segdata\.txt: no edge lines",
+    "contour_without_fps": r"c_segdata\.txt: a contour file carries no frame rate; give --fps",
+    "output_not_empty": r"output folder .*out is not empty .* --force",
+    "output_file_exists": r"gaw\.csv exists; use --force",
+    "noise_video": r"noise\.npy: no glottis found: the dark moving region covers up to \d+%",
+    "video_without_fps": r"v\.npy: the frame rate is not in the file; give fps",
+    "playback_rate_video": r"v\.avi \(the rate the file states\): a frame rate of 30 Hz .* --fps",
+    "simulate_bad_frames": r"n_frames must be an integer >= 1, got 0",
+    "simulate_low_fps": r"--fps: a frame rate of 30 Hz",
+}
+
+
+@pytest.mark.parametrize("case", list(CLI_CASES))
+def test_cli_refuses_bad_input_with_one_clear_line(tmp_path, case):
+    args = _write_case(tmp_path, case)
+    run = _cli(*args, cwd=tmp_path)
+    assert run.returncode == 2, (run.returncode, run.stderr[-2000:])
+    assert "Traceback" not in run.stderr, run.stderr[-2000:]
+    lines = [ln for ln in run.stderr.splitlines() if ln.startswith("vfjax")]
+    assert len(lines) == 1 and lines[0].startswith("vfjax: error: "), run.stderr
+    import re
+
+    assert re.search(CLI_CASES[case], lines[0]), lines[0]
+
+
+def test_cli_reads_its_own_simulated_output(tmp_path):
+    """The simulated table's areas are what a camera sees (clipped at zero), with the model's
+    signed area beside them: vfjax's own loader takes it back."""
+    run = _cli("simulate", "N1", "-o", "sim.csv", cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    rec = load_recording(tmp_path / "sim.csv")
+    sim = vfjax.simulate(vfjax.preset("N1"), FPS, 201)
+    signed = np.asarray(sim.area)
+    assert signed.min() < 0  # N1's folds overlap: the camera sees 0 there
+    np.testing.assert_allclose(rec.area, np.clip(signed, 0, None), atol=1e-6)
+    table = np.genfromtxt(tmp_path / "sim.csv", delimiter=",", names=True, dtype=None)
+    np.testing.assert_allclose(table["model_area_px"], signed, atol=1e-6)
+
+
+def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(tmp_path, shared_dir):
+    """`vfjax fit` takes contour files as `vfjax diagnose` does; a fit that explains nothing
+    (areas of 1e12 px) exits 1 with the reason on stderr, and its JSON and report say so."""
+    contour = shared_dir / "data" / "real" / "FN003_segdata.txt"
+    run = _cli("fit", contour, "--fps", "8000", "--out", "c", "--iterations", "20", cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert json.loads((tmp_path / "c" / "FN003_fit.json").read_text())["status"] == "successful"
+    rows = [f"{i},{i / FPS:.8f},{a * 1e10 + 1:g}" for i, a in enumerate(_gaw())]
+    run = _cli("fit", _table(tmp_path, rows=rows), "--iterations", "5", cwd=tmp_path)
+    assert run.returncode == 1, run.stderr
+    assert "Traceback" not in run.stderr
+    assert (
+        "the fit failed: NMSE" in run.stderr and "no better than the recording's mean" in run.stderr
+    )
+    saved = json.loads((tmp_path / "vfjax_output" / "rec_fit.json").read_text())
+    assert saved["status"] == "worse_than_mean"
+
+
+def test_cli_interrupt_exits_130_without_a_traceback(tmp_path):
+    """Ctrl-C: one line, exit code 130, and no output folder left half-written."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vfjax", "run", "--out", "out"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(6.0)  # inside the simulations or the first fit
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == (
+        "vfjax: interrupted; the output folder is left as it was"
+    )
+    assert not (tmp_path / "out").exists()
+    assert not list(tmp_path.glob(".out.partial-*"))
+
+
+# ------------------------------------------------------------------------------ security
+def _saved_fit(tmp_path):
+    """A saved fit result, made without fitting (the file format is what is under test)."""
+    model = vfjax.preset("N3")
+    result = vfjax.FitResult(
+        params={"K": float(model.params()["K"])},
+        units={"K": "dyne/cm"},
+        time_shift=0.0,
+        nmse=0.01,
+        pso_trace=[0.02],
+        lm_trace=[0.01],
+        timings={"total_s": 1.0},
+        trace_times=[0.0, 1.0],
+        n_simulations=10,
+        optimistix_result="successful",
+        settings={"params": ["K"], "warmup": 0.02, "max_time_shift": 0.01, "substeps": 4},
+        model=model,
+        recording_name="r",
+    )
+    path = tmp_path / "fit.json"
+    result.to_json(path)
+    return path, json.loads(path.read_text())
+
+
+def test_a_fit_file_cannot_run_code(tmp_path):
+    path, d = _saved_fit(tmp_path)
+    marker = tmp_path / "pwned"
+    evil = json.loads(json.dumps(d))
+    evil["model"]["terms"][0] = {
+        "class": "subprocess:run",
+        "fields": {"args": ["touch", str(marker)]},
+    }
+    path.write_text(json.dumps(evil))
+    with pytest.raises(ValueError, match=r"fit\.json: not a vfjax fit result"):
+        vfjax.FitResult.from_json(path)  # schema first: a string field is refused unread
+    evil["model"]["terms"][0] = {"class": "subprocess:run", "fields": {"args": 1.0}}
+    path.write_text(json.dumps(evil))
+    with pytest.raises(ValueError, match=r"fit\.json: refusing term class 'subprocess:run'"):
+        vfjax.FitResult.from_json(path)
+    evil["model"]["terms"][0] = {"class": "os:system", "fields": {}}
+    path.write_text(json.dumps(evil))
+    with pytest.raises(ValueError, match="refusing term class 'os:system'"):
+        vfjax.FitResult.from_json(path)
+    assert not marker.exists()
+
+
+def test_a_fit_file_is_validated_before_anything_is_built(tmp_path):
+    path, d = _saved_fit(tmp_path)
+    for change, message in [
+        (lambda e: e["model"]["terms"][0]["fields"].update(K="1e5"), "not a vfjax fit result"),
+        (lambda e: e["model"]["terms"][0]["fields"].update(spring=1.0), "has no field"),
+        (lambda e: e["model"]["terms"][0]["fields"].update(K=-1.0), "K \\(stiffness\\)"),
+        (lambda e: e.update(nmse="low"), "nmse"),
+        (lambda e: e.pop("params"), "params"),
+        (lambda e: e["model"]["subject"].update(mass=[1, 2]), "not a vfjax fit result"),
+    ]:
+        bad = json.loads(json.dumps(d))
+        change(bad)
+        path.write_text(json.dumps(bad))
+        with pytest.raises(ValueError, match=message):
+            vfjax.FitResult.from_json(path)
+    path.write_text("{not json")
+    with pytest.raises(ValueError, match=r"fit\.json: invalid JSON"):
+        vfjax.FitResult.from_json(path)
+
+
+def test_a_users_own_term_loads_when_passed_on_purpose(tmp_path):
+    class Drag(vfjax.AbstractForce):
+        b: jax.Array = eqx.field(default=0.0, converter=vfjax.as_parameter)
+        parameters = {"b": ("b", "g/cm")}
+
+        def force(self, ctx):
+            return -self.b * jnp.abs(ctx.v) * ctx.v
+
+    path, d = _saved_fit(tmp_path)
+    model = vfjax.preset("N3").with_term(Drag(b=0.05))
+    d["model"] = vfjax.serialise.model_to_dict(model)
+    path.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="refusing term class .*Drag"):
+        vfjax.FitResult.from_json(path)
+    back = vfjax.FitResult.from_json(path, terms=[Drag])
+    assert float(back.model.params()["b"]) == 0.05
+    assert back.status == "successful"
+
+
+# -------------------------------------------------------------------------- models and simulate
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(K=-1.0), r"K \(stiffness\) must be > 0, got -1\.0 dyne/cm"),
+        (dict(M=0.0), r"M \(mass\) must be > 0, got 0\.0 g"),
+        (dict(S=float("nan")), r"S \(scaling factor\) must be finite, got nan px/mm²"),
+        (dict(t_c=-1e-3), r"t_c \(closure duration\) must be >= 0"),
+        (dict(A_g0=-0.05), r"A_g0 \(rest_area\) must be > 0"),
+        (dict(P_s=0.0), r"P_s \(subglottal_pressure\) must be > 0"),
+    ],
+)
+def test_model_set_checks_values_as_the_presets_do(change, message):
+    with pytest.raises(ValueError, match=message):
+        vfjax.preset("N1").set(**change)
+
+
+def test_invalid_models_made_otherwise_are_reported_by_simulate():
+    m = vfjax.preset("N1")
+    negated = jax.tree.map(lambda x: -x, m)  # no check runs here
+    with pytest.raises(ValueError, match="must be > 0"):
+        negated.check()
+    with pytest.raises(ValueError, match="must be > 0"):  # names the parameter, outside jit
+        vfjax.simulate(negated, FPS, 51)
+    for bad in (negated, eqx.tree_at(lambda m: m.subject.mass, m, jnp.nan)):
+        sim = vfjax.simulate(bad, FPS, 51, throw=False)
+        assert bool(sim.result == vfjax.RESULTS.invalid_parameters)
+        assert not bool(sim.complete) and np.all(np.isnan(np.asarray(sim.area)))
+    # inside jit and vmap: a result code, one member at a time
+    ks = jnp.array([1.0, -1.0]) * m.params()["K"]
+    sims = jax.jit(jax.vmap(lambda k: vfjax.simulate(m.set(K=k), FPS, 51, throw=False)))(ks)
+    assert np.asarray(sims.result == vfjax.RESULTS.successful).tolist() == [True, False]
+    assert np.asarray(sims.result == vfjax.RESULTS.invalid_parameters).tolist() == [False, True]
+    with pytest.raises(Exception, match="outside its admissible range"):
+        jax.jit(lambda k: vfjax.simulate(m.set(K=k), FPS, 51).area)(-1.0).block_until_ready()
+
+
+def test_time_shift_outside_its_range():
+    m = vfjax.preset("N1")
+    with pytest.raises(ValueError, match=r"time_shift must be a number in \[0, max_time_shift\]"):
+        vfjax.simulate(m, FPS, 201, time_shift=0.01)
+    with pytest.raises(ValueError, match="time_shift"):
+        vfjax.simulate(m, FPS, 201, time_shift=-0.001, max_time_shift=0.01)
+    traced = jax.jit(
+        lambda s: vfjax.simulate(m, FPS, 201, time_shift=s, max_time_shift=0.005, throw=False)
+    )(0.01)
+    assert bool(traced.result == vfjax.RESULTS.time_shift_out_of_range)
+    assert not bool(traced.complete)
+
+
+def test_simulate_refuses_runs_that_would_not_fit_in_memory():
+    m = vfjax.preset("N1")
+    with pytest.raises(ValueError, match="more than the 2097152 iterations"):
+        vfjax.simulate(m, 0.001, 201)
+    with pytest.raises(ValueError, match="more than the"):
+        vfjax.simulate(m, FPS, 201, t_start=1e5)
+    with pytest.raises(ValueError, match="more than the"):
+        vfjax.simulate(m, FPS, 201, max_events=10**9)
+
+
+def test_frame_counts_are_integers_and_time_shifts_are_data():
+    m = vfjax.preset("N3")
+    a = vfjax.simulate(m, FPS, np.int64(101)).area
+    assert a.shape == (101,)
+    for bad in (101.0, np.float64(101), True, "101"):
+        with pytest.raises(TypeError, match="n_frames must be an integer"):
+            vfjax.simulate(m, FPS, bad)
+    vfjax.simulate(m, FPS, 51, time_shift=0.001, max_time_shift=0.01)
+    compiled = []
+
+    class Count(logging.Handler):
+        def emit(self, record):
+            if record.getMessage().startswith("Compiling jit(_simulate)"):
+                compiled.append(record)
+
+    handler = Count()
+    logging.getLogger("jax").addHandler(handler)
+    try:
+        with jax.log_compiles():
+            for shift in (0.002, 0.003, np.float64(0.004)):
+                vfjax.simulate(m, FPS, 51, time_shift=shift, max_time_shift=0.01)
+            vfjax.simulate(m.set(K=7e5), FPS, 51, time_shift=0.002, max_time_shift=0.01)
+    finally:
+        logging.getLogger("jax").removeHandler(handler)
+    assert compiled == []
+
+
+def test_integer_parameter_leaves_are_refused():
+    class Sloppy(vfjax.AbstractForce):
+        b: jax.Array = eqx.field(default=0.0, converter=jnp.asarray)
+        parameters = {"b": ("b", "g/cm")}
+
+        def force(self, ctx):
+            return -self.b * ctx.v
+
+    with pytest.raises(TypeError, match="as_parameter"):
+        Sloppy(b=1)
+
+    class Careful(Sloppy):
+        b: jax.Array = eqx.field(default=0.0, converter=vfjax.as_parameter)
+
+    term = Careful(b=1)
+    grad = eqx.filter_grad(lambda t: t.b * 3.0)(term)
+    assert float(grad.b) == 3.0
+
+
+# -------------------------------------------------------------------------------- fits
+def test_a_fit_that_explains_nothing_is_reported_failed(tmp_path):
+    rec = vfjax.Recording(area=_gaw() * 1e10 + 1.0, fps=FPS, name="huge")
+    result = vfjax.fit(vfjax.preset("N3"), rec, params=("S", "K"), iterations=5, lm_steps=5)
+    assert result.status == "worse_than_mean" and result.failed
+    of_mean = np.sum((rec.area - rec.area.mean()) ** 2) / np.sum(rec.area**2)
+    assert result.nmse_of_mean == pytest.approx(of_mean)
+    assert "no better than the recording's mean" in result.status_message()
+    result.to_json(tmp_path / "f.json")
+    assert json.loads((tmp_path / "f.json").read_text())["status"] == "worse_than_mean"
+    assert vfjax.FitResult.from_json(tmp_path / "f.json").failed
+
+
+def test_a_fit_that_ends_at_its_box_edge_is_reported_failed():
+    """A box that excludes the true K (1.05 to 1.3 times it): the fit ends on the box's edge."""
+    truth = vfjax.preset("N3")
+    sim = vfjax.simulate(truth, FPS, 201, t_start=0.03)
+    rec = vfjax.Recording(area=np.clip(np.asarray(sim.area), 0, None), fps=FPS, name="edge")
+    k = float(truth.params()["K"])
+    result = vfjax.fit(
+        truth.set(K=1.15 * k),
+        rec,
+        params=("S", "K"),
+        bounds={"K": (1.05 * k, 1.3 * k)},
+        iterations=5,
+        polish=False,
+    )
+    assert result.status == "at_bound" and result.failed
+    assert result.params["K"] / k == pytest.approx(1.05, rel=1e-3)
+    assert "K = " in result.status_message() and "edge of its search box" in result.status_message()
+
+
+# ----------------------------------------------------------------------------- loaders
+def test_rows_out_of_order_are_sorted_with_a_warning(tmp_path):
+    rows = _good_rows()
+    csv = _table(tmp_path, rows=rows[100:] + rows[:100])
+    with pytest.warns(UserWarning, match="rows out of frame order; sorted"):
+        rec = load_recording(csv)
+    np.testing.assert_array_equal(rec.area, _gaw())
+
+
+def test_a_recording_with_gaps_can_be_cut_into_segments(tmp_path):
+    rows = _good_rows()
+    csv = _table(tmp_path, rows=rows[:50] + rows[80:])
+    parts = load_segments(csv)
+    assert [p.n_frames for p in parts] == [50, 121]
+    assert [p.metadata["first_frame"] for p in parts] == [0, 80]
+    np.testing.assert_array_equal(parts[1].area, _gaw()[80:])
+
+
+def test_video_at_a_playback_rate_is_refused_unless_the_camera_rate_is_given(shared_dir):
+    from vfjax.segmentation import frames_to_recording, video_to_recording
+
+    clip = shared_dir / "data" / "hsv_real" / "openhsv_oscillating_vocal_folds.mp4"
+    with pytest.raises(ValueError, match="30 Hz .* give it with --fps"):
+        video_to_recording(clip)
+    rec = video_to_recording(clip, fps=4000.0)
+    assert rec.fps == 4000.0 and rec.area.max() > 0
+    flat = np.random.default_rng(1).normal(100, 1, (64, 32, 32))
+    flat[:, 10:20, 10:20] += np.random.default_rng(2).normal(0, 30, (64, 10, 10))
+    with pytest.raises(ValueError, match="no glottis found|no vibrating glottis found"):
+        frames_to_recording(np.clip(flat, 0, 255), 4000.0)
+
+
+# hypothesis: random tables and sidecars never crash the loader and never pass garbage
+_CELLS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.integers(-(10**6), 10**6).map(str),
+    st.text(st.characters(blacklist_characters=',"\r\n', blacklist_categories=["Cs"]), max_size=6),
+    st.just(""),
+)
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    header=st.lists(
+        st.sampled_from(["frame", "time_s", "area_px", "area", "area_mm2", "x"]),
+        min_size=1,
+        max_size=4,
+    ),
+    cells=st.lists(st.lists(_CELLS, min_size=0, max_size=5), max_size=8),
+    sidecar=st.one_of(
+        st.dictionaries(
+            st.sampled_from(["fps", "area_unit", "sex", "x"]),
+            st.one_of(st.floats(), st.integers(), st.text(max_size=5), st.none()),
+        ),
+        st.text(max_size=20),
+    ),
+)
+def test_random_tables_and_sidecars_never_crash(tmp_path, header, cells, sidecar):
+    csv = tmp_path / "r.csv"
+    csv.write_text("\n".join([",".join(header)] + [",".join(r) for r in cells]))
+    csv.with_suffix(".json").write_text(
+        sidecar if isinstance(sidecar, str) else json.dumps(sidecar)
+    )
+    try:
+        rec = load_recording(csv)
+    except ValueError:
+        return
+    # a success is a sound recording of what the table says
+    assert rec.n_frames >= 2 and np.all(np.isfinite(rec.area)) and np.all(rec.area >= 0)
+    assert 1000.0 <= rec.fps <= 100_000.0
+    assert rec.n_frames == len([r for r in cells if any(c.strip() for c in r)])
+
+
+_CORRUPTIONS = {  # corruption: whether the loader must refuse it
+    "none": False,
+    "shuffle": False,
+    "drop_middle_row": True,
+    "duplicate_row": True,
+    "bad_cell": True,
+    "negative": True,
+    "time_at_half_rate": True,
+    "fps_out_of_range": True,
+    "truncate_json": True,
+}
+
+
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    n=st.integers(3, 40),
+    seed=st.integers(0, 2**16),
+    corruption=st.sampled_from(sorted(_CORRUPTIONS)),
+)
+def test_corrupted_tables_are_refused_and_sound_ones_read_exactly(tmp_path, n, seed, corruption):
+    rng = np.random.default_rng(seed)
+    area = np.round(rng.uniform(0, 500, n), 3)
+    fps = float(rng.choice([2000.0, 4000.0, 8000.0, 20000.0]))
+    rows = [f"{i},{i / fps:.9f},{a}" for i, a in enumerate(area)]
+    side = json.dumps({"fps": fps, "area_unit": "px"})
+    if corruption == "shuffle":
+        rows = [rows[i] for i in rng.permutation(n)]
+    elif corruption == "drop_middle_row":
+        del rows[int(rng.integers(1, n - 1))]
+    elif corruption == "duplicate_row":
+        i = int(rng.integers(0, n))
+        rows.insert(i, rows[i])
+    elif corruption == "bad_cell":
+        rows[int(rng.integers(0, n))] += "x"
+    elif corruption == "negative":
+        i = int(rng.integers(0, n))
+        rows[i] = f"{i},{i / fps:.9f},-1"
+    elif corruption == "time_at_half_rate":
+        rows = [f"{i},{2 * i / fps:.9f},{a}" for i, a in enumerate(area)]
+    elif corruption == "fps_out_of_range":
+        side = json.dumps({"fps": float(rng.choice([0.5, 30.0, 5e5])), "area_unit": "px"})
+    elif corruption == "truncate_json":
+        side = side[: int(rng.integers(0, len(side) - 1))]
+    csv = tmp_path / "t.csv"
+    csv.write_text("frame,time_s,area_px\n" + "\n".join(rows) + "\n")
+    csv.with_suffix(".json").write_text(side)
+    if _CORRUPTIONS[corruption]:
+        with pytest.raises(ValueError, match="t.csv|t.json"):
+            load_recording(csv)
+        return
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rec = load_recording(csv)
+    in_order = rows == sorted(rows, key=lambda r: int(r.split(",")[0]))
+    assert any("out of frame order" in str(w.message) for w in caught) == (not in_order)
+    np.testing.assert_array_equal(rec.area, area)
+    assert rec.fps == fps
+
+
+def test_contour_files_with_bad_content(tmp_path):
+    path = tmp_path / "x_segdata.txt"
+    for text, message in [
+        ("", "no edge lines"),
+        ("# only a comment\n", "no edge lines"),
+        ("1 2 3\n", "expected two"),
+        ("1 2\n3\n", "different lengths"),
+        ("1 a\n1 2\n", "non-numeric"),
+        ("1 -2\n1 2\n", "column indices >= 0"),
+    ]:
+        path.write_text(text)
+        with pytest.raises(ValueError, match=message):
+            load_contours(path, 8000.0)
+    path.write_bytes(b"\x00\x01\x02")
+    with pytest.raises(ValueError, match="binary"):
+        load_contours(path, 8000.0)
+    path.write_text("1 2\n3 4\n")
+    with pytest.raises(ValueError, match="frame rate of 30 Hz"):
+        load_contours(path, 30.0)
