@@ -58,7 +58,7 @@ def box_study(n_sets, seed=0):
         def run(k, model=model, p=p, factors=factors):
             def one(f):
                 m = model.set(**{n: p[n] * f[i] for i, n in enumerate(names)})
-                return vfjax.simulate(m, FPS, N, substeps=k).area
+                return vfjax.simulate(m, FPS, N, substeps=k, throw=False).area
 
             return np.asarray(jax.jit(jax.vmap(one))(factors))
 

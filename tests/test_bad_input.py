@@ -367,10 +367,15 @@ def test_invalid_models_made_otherwise_are_reported_by_simulate():
 
 def test_time_shift_outside_its_range():
     m = vfjax.preset("N1")
-    with pytest.raises(ValueError, match=r"time_shift must be a number in \[0, max_time_shift\]"):
+    message = r"time_shift must be a number in \[-t_start, max_time_shift\] = \[0, 0\] s"
+    with pytest.raises(ValueError, match=message):
         vfjax.simulate(m, FPS, 201, time_shift=0.01)
-    with pytest.raises(ValueError, match="time_shift"):
-        vfjax.simulate(m, FPS, 201, time_shift=-0.001, max_time_shift=0.01)
+    with pytest.raises(ValueError, match=r"= \[-0.02, 0.01\] s, got -0.021"):
+        vfjax.simulate(m, FPS, 201, t_start=0.02, time_shift=-0.021, max_time_shift=0.01)
+    # a shift back into the warm-up is within the integration
+    early = vfjax.simulate(m, FPS, 201, t_start=0.02, time_shift=-0.005, max_time_shift=0.01)
+    direct = vfjax.simulate(m, FPS, 201, t_start=0.02, max_time_shift=0.01).dense
+    np.testing.assert_allclose(early.displacement, direct.displacement(early.time), atol=1e-12)
     traced = jax.jit(
         lambda s: vfjax.simulate(m, FPS, 201, time_shift=s, max_time_shift=0.005, throw=False)
     )(0.01)
@@ -621,3 +626,19 @@ def test_contour_files_with_bad_content(tmp_path):
     path.write_text("1 2\n3 4\n")
     with pytest.raises(ValueError, match="frame rate of 30 Hz"):
         load_contours(path, 30.0)
+
+
+def test_oversized_files_are_refused_before_they_are_read(tmp_path):
+    from vfjax.recording import MAX_TEXT_BYTES
+    from vfjax.video import MAX_VIDEO_PIXELS, read_video
+
+    csv = _table(tmp_path)
+    with csv.open("r+b") as f:  # a sparse file: nothing is written
+        f.truncate(MAX_TEXT_BYTES + 1)
+    with pytest.raises(ValueError, match=r"rec\.csv: \d+ bytes, more than a GAW table"):
+        load_recording(csv)
+    path = tmp_path / "long.npy"
+    shape = (MAX_VIDEO_PIXELS // (256 * 256) + 1, 256, 256)
+    np.lib.format.open_memmap(path, mode="w+", dtype=np.uint8, shape=shape).flush()
+    with pytest.raises(ValueError, match=r"long\.npy: 4097 frames of 256 x 256 pixels, more than"):
+        read_video(path)

@@ -174,7 +174,16 @@ def load_segments(path, sidecar=None, min_frames: int = 2) -> list[Recording]:
     return out
 
 
-def _read_text(path: pathlib.Path, what: str) -> str:
+#: Text inputs larger than this (bytes) are refused unread: a GAW table of a million frames
+#: takes about 30 MB.
+MAX_TEXT_BYTES = 256 * 2**20
+
+
+def _read_text(path: pathlib.Path, what: str, limit: int = MAX_TEXT_BYTES) -> str:
+    if path.is_file() and path.stat().st_size > limit:
+        raise ValueError(
+            f"{path}: {path.stat().st_size} bytes, more than a {what} can be ({limit} bytes)"
+        )
     try:
         data = path.read_bytes()
     except IsADirectoryError:
@@ -195,7 +204,7 @@ def read_sidecar(path) -> dict:
     path = pathlib.Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no sidecar {path}: it must give fps and area_unit")
-    text = _read_text(path, "JSON sidecar")
+    text = _read_text(path, "JSON sidecar", limit=2**20)
     try:
         meta = json.loads(text)
     except json.JSONDecodeError as err:

@@ -22,8 +22,45 @@ def _to_grey(video: np.ndarray) -> np.ndarray:
     return video
 
 
+#: The most pixels (frames x height x width) a video may hold: 2^28, e.g. 4 000 frames of
+#: 256 x 256. Segmentation works in float32 with a few copies, so this keeps it within a few
+#: GB; a longer clip is refused before it is decoded (cut it into parts).
+MAX_VIDEO_PIXELS = 2**28
+
+
+def _check_size(path, shape) -> None:
+    if shape is None:
+        return
+    shape = tuple(int(n) for n in shape)
+    n = int(np.prod(shape[:3])) if len(shape) >= 3 else 0
+    if n > MAX_VIDEO_PIXELS:
+        raise ValueError(
+            f"{path}: {shape[0]} frames of {shape[1]} x {shape[2]} pixels, more than the "
+            f"{MAX_VIDEO_PIXELS} pixels vfjax segments at once: cut the video into parts"
+        )
+
+
+def _declared_shape(path, suffix):
+    """The video's shape from its header, without decoding it (None if unknown)."""
+    if suffix == ".npy":
+        return np.load(path, mmap_mode="r", allow_pickle=False).shape
+    if suffix in (".tif", ".tiff"):
+        import tifffile
+
+        with tifffile.TiffFile(path) as tif:
+            return tif.series[0].shape
+    if suffix in (".avi", ".mp4", ".mov", ".mkv"):
+        import imageio.v3 as iio
+
+        return iio.improps(path).shape
+    return None
+
+
 def read_video(path) -> tuple[np.ndarray, float | None]:
-    """Read a video file; returns (frames, fps or None when the file does not say)."""
+    """Read a video file; returns (frames, fps or None when the file does not say).
+
+    A video of more than `MAX_VIDEO_PIXELS` pixels is refused, from its header where the
+    format has one, before it is decoded."""
     path = pathlib.Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no video at {path}")
@@ -36,6 +73,7 @@ def read_video(path) -> tuple[np.ndarray, float | None]:
         )
     fps = None
     try:
+        _check_size(path, _declared_shape(path, suffix))
         if suffix in (".tif", ".tiff"):
             import tifffile
 
@@ -52,9 +90,15 @@ def read_video(path) -> tuple[np.ndarray, float | None]:
                 fps = iio.immeta(path).get("fps")
             except Exception:  # noqa: BLE001 - metadata is optional
                 fps = None
+    except ValueError as err:
+        if str(err).startswith(str(path)):
+            raise
+        raise ValueError(f"cannot read {path}: {type(err).__name__}: {err}") from err
     except Exception as err:  # unreadable or corrupt file: say which
         raise ValueError(f"cannot read {path}: {type(err).__name__}: {err}") from err
-    return _to_grey(np.asarray(video)), fps
+    video = np.asarray(video)
+    _check_size(path, video.shape)
+    return _to_grey(video), fps
 
 
 def _read_mraw(path: pathlib.Path):
