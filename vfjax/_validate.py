@@ -130,6 +130,26 @@ def _u(unit: str) -> str:
     return f" {unit}" if unit else ""
 
 
+def check_schema(data, schema_file: str, where: str, what: str) -> None:
+    """Raise ValueError if ``data`` breaks the JSON schema ``vfjax/schemas/<schema_file>``
+    (``data_schema/`` in the repository), naming ``where``, ``what`` it should be, and the
+    first few fields at fault with what is wrong with each."""
+    import json
+    import pathlib
+
+    import jsonschema
+
+    path = pathlib.Path(__file__).parent / "schemas" / schema_file
+    schema = json.loads(path.read_text())
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(data), key=str)
+    if errors:
+        fields = []
+        for err in errors[:5]:
+            field = ".".join(map(str, err.absolute_path)) or "(top level)"
+            fields.append(f"{field}: {err.message:.200}")
+        raise ValueError(f"{where}: {what}: " + "; ".join(fields))
+
+
 def as_parameter(value):
     """Field converter for a term's parameters: a floating-point array (a pytree leaf that
     `jax.grad` and `eqx.filter_grad` differentiate). ``jnp.asarray`` would keep an integer

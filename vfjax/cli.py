@@ -337,9 +337,55 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cache_folder() -> pathlib.Path:
+    """Where the command line keeps JAX's persistent compilation cache: ``$VFJAX_CACHE_DIR``,
+    else ``vfjax/jax`` in the user's cache folder (``$XDG_CACHE_HOME``, else ``~/.cache``)."""
+    if os.environ.get("VFJAX_CACHE_DIR"):
+        return pathlib.Path(os.environ["VFJAX_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache"
+    return pathlib.Path(base) / "vfjax" / "jax"
+
+
+def use_compilation_cache(folder=None) -> pathlib.Path | None:
+    """Turn on JAX's persistent compilation cache in ``folder`` (default `cache_folder`), so
+    that a program compiled once (a fit of a model structure) is loaded, not compiled again,
+    by later processes. A folder that cannot be written leaves the cache off, with one
+    warning on stderr. Returns the folder in use, or None."""
+    import tempfile
+
+    import jax
+
+    folder = pathlib.Path(folder) if folder is not None else cache_folder()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".probe-"):
+            pass
+    except OSError as err:
+        reason = err.strerror or err
+        print(
+            f"vfjax: warning: compilation cache off: cannot write {folder} ({reason})",
+            file=sys.stderr,
+        )
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    return folder
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="vfjax", description="Differentiable vocal-fold model.")
+    p = argparse.ArgumentParser(
+        prog="vfjax",
+        description="Differentiable vocal-fold model.",
+        epilog="Compiled programs are kept in JAX's persistent compilation cache (default "
+        "~/.cache/vfjax/jax; VFJAX_CACHE_DIR names another folder), so a second run of the "
+        "same kind skips compilation; --no-cache (or VFJAX_NO_CACHE=1) turns it off.",
+    )
     p.add_argument("--version", action="version", version=f"vfjax {__version__}")
+    p.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="do not read or write the persistent compilation cache",
+    )
     sub = p.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="the main job on embedded data: simulate, fit, report")
@@ -421,6 +467,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from .integrator import SimulationError
 
+    if not (args.no_cache or os.environ.get("VFJAX_NO_CACHE")):
+        use_compilation_cache()
     try:
         return args.func(args)
     except KeyboardInterrupt:

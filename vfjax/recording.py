@@ -10,6 +10,8 @@ import warnings
 
 import numpy as np
 
+from ._validate import check_schema
+
 AREA_UNITS = ("px", "mm2", "cm2")
 
 
@@ -392,14 +394,4 @@ def load_contours(path, fps: float, **metadata) -> Recording:
 def validate_sidecar(meta: dict, where="sidecar") -> None:
     """Check a recording sidecar against ``data_schema/recording.schema.json``; the error
     names the field and what is wrong with it."""
-    import jsonschema
-
-    schema_path = pathlib.Path(__file__).parent / "schemas" / "recording.schema.json"
-    schema = json.loads(schema_path.read_text())
-    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(meta), key=str)
-    if errors:
-        lines = []
-        for err in errors:
-            field = ".".join(map(str, err.absolute_path)) or "(top level)"
-            lines.append(f"{field}: {err.message}")
-        raise ValueError(f"{where}: invalid recording sidecar: " + "; ".join(lines))
+    check_schema(meta, "recording.schema.json", where, "invalid recording sidecar")

@@ -13,6 +13,7 @@ import pathlib
 import equinox as eqx
 import numpy as np
 
+from ._validate import check_schema
 from .model import VocalFoldModel
 from .subject import Subject
 from .terms import (
@@ -160,17 +161,7 @@ def fit_result_to_dict(result) -> dict:
 def validate_fit_result(d, where: str = "fit result") -> None:
     """Check a saved fit result against ``data_schema/fit_result.schema.json``; the error
     names the field and what is wrong with it."""
-    import jsonschema
-
-    schema_path = pathlib.Path(__file__).parent / "schemas" / "fit_result.schema.json"
-    schema = json.loads(schema_path.read_text())
-    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(d), key=str)
-    if errors:
-        lines = []
-        for err in errors[:5]:
-            field = ".".join(map(str, err.absolute_path)) or "(top level)"
-            lines.append(f"{field}: {err.message:.200}")
-        raise ValueError(f"{where}: not a vfjax fit result: " + "; ".join(lines))
+    check_schema(d, "fit_result.schema.json", where, "not a vfjax fit result")
 
 
 def fit_result_from_dict(d: dict, terms=(), where: str = "fit result"):
