@@ -174,7 +174,7 @@ def _diagnosis_section(out):
     added = study.added
     print(
         f"diagnosis: added {added or 'nothing'}; NMSE {study.first.nmse:.3e} -> "
-        f"{study.final.nmse:.3e}; report {path}"
+        f"{study.final.nmse:.3e}; report diagnosis/{path.name} in the output folder"
     )
     values = {n: v for n, v in study.final.params.items() if n not in study.first.params}
     return [
