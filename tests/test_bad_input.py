@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 
 import vfjax
 from vfjax.recording import load_contours, load_recording, load_segments
+from vfjax.serialise import model_to_dict
 
 FPS = 4000.0
 
@@ -345,7 +346,7 @@ def test_a_users_own_term_loads_when_passed_on_purpose(tmp_path):
 
     path, d = _saved_fit(tmp_path)
     model = vfjax.preset("N3").with_term(Drag(b=0.05))
-    d["model"] = vfjax.serialise.model_to_dict(model)
+    d["model"] = model_to_dict(model)
     path.write_text(json.dumps(d))
     with pytest.raises(ValueError, match="refusing term class .*Drag"):
         vfjax.FitResult.from_json(path)

@@ -16,31 +16,14 @@ import numpy as np
 from ._validate import check_schema
 from .model import VocalFoldModel
 from .subject import Subject
-from .terms import (
-    BernoulliForce,
-    ClosureHold,
-    ClosureJitter,
-    CubicStiffness,
-    Elastic,
-    FlowSeparation,
-    GlottalGap,
-    MucosalDelay,
-    PressureModulation,
-    TanhDamping,
-)
+from .terms import CATALOGUE, ClosureJitter
 from .terms.base import AbstractTerm
+from .terms.paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
 
 #: The term classes a saved model may name without being passed to the reader.
 BUILTIN_TERMS: tuple[type[AbstractTerm], ...] = (
-    Elastic,
-    TanhDamping,
-    BernoulliForce,
-    FlowSeparation,
-    ClosureHold,
-    GlottalGap,
-    CubicStiffness,
-    PressureModulation,
-    MucosalDelay,
+    *(Elastic, TanhDamping, BernoulliForce, FlowSeparation, ClosureHold),
+    *CATALOGUE,
     ClosureJitter,
 )
 #: Saved fit results larger than this (bytes) are refused unread.
