@@ -263,7 +263,8 @@ def _read_table(path, sidecar):
     frames = _column(path, header, body, "frame") if "frame" in header else None
     times = _column(path, header, body, "time_s") if "time_s" in header else None
     if frames is not None:
-        if not np.all(np.isfinite(frames) & (frames == np.round(frames))):
+        whole = np.isfinite(frames) & (frames == np.round(frames)) & (np.abs(frames) < 2**53)
+        if not np.all(whole):
             raise ValueError(f"{path}: the frame column must hold whole numbers")
         frames = frames.astype(np.int64)
     elif times is not None:
