@@ -669,3 +669,18 @@ def test_oversized_files_are_refused_before_they_are_read(tmp_path):
     np.lib.format.open_memmap(path, mode="w+", dtype=np.uint8, shape=shape).flush()
     with pytest.raises(ValueError, match=r"long\.npy: 4097 frames of 256 x 256 pixels, more than"):
         read_video(path)
+
+
+def test_a_model_without_a_sub_critical_displacement_is_refused():
+    """F_sa above the aerodynamic force at any area: x_c does not exist."""
+    with pytest.raises(ValueError, match="no sub-critical displacement x_c"):
+        vfjax.preset("N1").with_term(vfjax.BernoulliForce(separation_force=1e6))
+    traced = jax.jit(
+        lambda f: vfjax.simulate(
+            vfjax.preset("N1").with_term(vfjax.BernoulliForce(separation_force=f)),
+            FPS,
+            51,
+            throw=False,
+        )
+    )(1e6)
+    assert bool(traced.result == vfjax.RESULTS.invalid_parameters)

@@ -92,8 +92,10 @@ class VocalFoldModel(eqx.Module):
         return ok & jnp.isfinite(self.subcritical_displacement())
 
     def _check_subcritical(self):
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(self)):
+            return  # traced: `is_valid` reports it inside the computation
         xc = self.subcritical_displacement()
-        if not isinstance(xc, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(xc))):
+        if not bool(jnp.all(jnp.isfinite(xc))):
             raise ValueError(
                 "the model has no sub-critical displacement x_c: with P_s = "
                 f"{self.subject.subglottal_pressure} dyne/cm² and F_sa = "
