@@ -47,7 +47,7 @@ class Constraint(NamedTuple):
             return
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"{self.label} must be finite, got {_show(arr)}{_u(self.unit)}")
-        if not np.all(self._holds(np, arr)):
+        if not np.all(self._holds(arr)):
             raise ValueError(
                 f"{self.label} must {self.describe()}, got {_show(arr)}{_u(self.unit)}"
             )
@@ -55,9 +55,9 @@ class Constraint(NamedTuple):
     def holds(self, value):
         """Whether ``value`` is admissible, as a traced boolean scalar."""
         value = jnp.asarray(value)
-        return jnp.all(jnp.isfinite(value) & self._holds(jnp, value))
+        return jnp.all(jnp.isfinite(value) & self._holds(value))
 
-    def _holds(self, xp, value):
+    def _holds(self, value):
         above = value >= self.low if self.closed_low else value > self.low
         return above & (value < self.high)
 
@@ -105,11 +105,6 @@ def _concrete(value):
         return np.asarray(value, dtype=float)
     except (TypeError, ValueError) as err:
         raise TypeError(f"expected a number, got {value!r}") from err
-
-
-def check_finite(name: str, value, unit: str = "") -> None:
-    """Raise ValueError naming ``name`` if ``value`` has a NaN or infinity."""
-    finite("value", name, unit).check(value)
 
 
 def check_positive(name: str, value, unit: str = "") -> None:

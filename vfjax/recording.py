@@ -262,14 +262,14 @@ def _read_table(path, sidecar):
     area = _column(path, header, body, column)
     frames = _column(path, header, body, "frame") if "frame" in header else None
     times = _column(path, header, body, "time_s") if "time_s" in header else None
+    if times is not None and not np.all(np.isfinite(times)):
+        raise ValueError(f"{path}: time_s has NaN or infinite values")
     if frames is not None:
         whole = np.isfinite(frames) & (frames == np.round(frames)) & (np.abs(frames) < 2**53)
         if not np.all(whole):
             raise ValueError(f"{path}: the frame column must hold whole numbers")
         frames = frames.astype(np.int64)
     elif times is not None:
-        if not np.all(np.isfinite(times)):
-            raise ValueError(f"{path}: time_s has NaN or infinite values")
         spacing = np.median(np.diff(np.sort(times))) * fps if times.size > 1 else 1.0
         if not 0.9 <= spacing <= 1.1:
             raise ValueError(
@@ -299,8 +299,6 @@ def _read_table(path, sidecar):
         raise ValueError(f"{path}: frame {int(repeated[0])} appears more than once")
     if times is not None:
         times = times[order]
-        if not np.all(np.isfinite(times)):
-            raise ValueError(f"{path}: time_s has NaN or infinite values")
         offsets = times - (frames - frames[0]) / fps
         off = np.abs(offsets - np.median(offsets)).max() * fps
         if off > 0.1 and len(frames) > 1:
