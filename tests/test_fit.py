@@ -1,6 +1,7 @@
 """Fitting against truths the fit did not make: known parameters, and the shared synthetic case."""
 
 import json
+import pathlib
 
 import jax
 import jsonschema
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 import vfjax
-from vfjax.fit import fit, fit_many
+from vfjax import Polish, Swarm, fit, fit_many
 from vfjax.recording import Recording, load_recording
 
 FPS = 4000.0
@@ -49,7 +50,7 @@ def test_recovers_parameters_without_noise(n1_fit):
 def test_polish_never_worse_than_the_swarm(n1_fit):
     _, _, result = n1_fit
     assert np.all(np.diff(result.pso_trace) <= 0)
-    assert np.all(np.diff(result.lm_trace) <= 0)
+    assert len(result.lm_trace) == 2 and result.lm_trace[1] <= result.lm_trace[0]
     # the swarm's best, re-evaluated as the polish's start (same point, another code path:
     # equal to rounding)
     assert result.lm_trace[0] <= result.pso_trace[-1] * (1 + 1e-6)
@@ -93,8 +94,8 @@ def test_shared_syn_base_fit_reaches_the_true_parameters_error(shared_dir):
         rec,
         params=("S",),
         bounds={"S": (s * (1 - 1e-9), s * (1 + 1e-9))},
-        iterations=20,
-        polish=False,
+        swarm=Swarm(iterations=20),
+        polish=None,
         progress=False,
     )
     result = fit(vfjax.preset("N1"), rec, progress=False)
@@ -107,13 +108,14 @@ def test_same_key_same_result_and_callback():
     rec = _recording(truth, t_start=0.03)
     seen = []
     start = truth.set(K=1.3 * float(truth.params()["K"]))  # the swarm has work to do
-    kw = dict(iterations=10, chunk=5, polish=False, progress=False, swarm_size=16)
+    kw = dict(swarm=Swarm(size=16, iterations=10, chunk=4), polish=None, progress=False)
     a = fit(start, rec, key=jax.random.key(7), callback=lambda i, c: seen.append((i, c)), **kw)
     b = fit(start, rec, key=jax.random.key(7), **kw)
     c = fit(start, rec, key=jax.random.key(8), **kw)
     assert a.params == b.params and a.pso_trace == b.pso_trace
     assert a.pso_trace != c.pso_trace
-    assert [i for i, _ in seen] == [5, 10]
+    assert [i for i, _ in seen] == [4, 8, 10]  # after each compiled chunk
+    assert len(a.pso_trace) == 11
     assert seen[-1][1] == a.pso_trace[-1]
 
 
@@ -122,12 +124,7 @@ def test_json_round_trip_without_loss(n1_fit, tmp_path):
     path = tmp_path / "fit.json"
     result.to_json(path)
     schema = json.loads(
-        (
-            vfjax.__file__
-            and __import__("pathlib").Path(__file__).parents[1]
-            / "data_schema"
-            / "fit_result.schema.json"
-        ).read_text()
+        (pathlib.Path(vfjax.__file__).parent / "schemas" / "fit_result.schema.json").read_text()
     )
     jsonschema.validate(json.loads(path.read_text()), schema)
     back = vfjax.FitResult.from_json(path)
@@ -141,7 +138,9 @@ def test_json_round_trip_without_loss(n1_fit, tmp_path):
         "timings",
         "n_simulations",
         "optimistix_result",
-        "settings",
+        "sampling",
+        "bounds",
+        "swarm",
         "recording_name",
     ):
         assert getattr(back, f) == getattr(result, f), f
@@ -169,31 +168,40 @@ def test_fit_many_matches_single_fits():
         assert r.nmse < 1e-4
     for rec, r in zip(recs, results):  # the reported NMSE is that of the fitted GAW, re-simulated
         assert r.nmse == pytest.approx(float(vfjax.nmse(rec.area, r.fitted_gaw(rec))), rel=1e-9)
-    assert "C_f" not in results[3].params and "C_f" not in results[3].settings["bounds"]
+    assert "C_f" not in results[3].params and "C_f" not in results[3].bounds
     assert float(results[3].model.params()["C_f"]) == c_f
     with pytest.raises(ValueError, match="held"):
         fit_many(models[0], recs[:1], hold=[("S",)])
 
 
+def _problem(model, rec, params=("S", "K", "C_f")):
+    from vfjax._fit._problem import fit_sampling, prepare
+
+    sampling, period = fit_sampling(rec, 0.02, 4)
+    return prepare(model, rec, params, sampling, period, None)[0]
+
+
 def test_swarm_cost_is_the_best_shift_of_direct_simulations():
     """The swarm reads every time shift off one simulation; each candidate shift, simulated
     directly with that delay, gives the same cost, and none does better."""
-    from vfjax.fit import _prepare
-
     truth = vfjax.preset("N3")
     rec = _recording(truth, t_start=0.0237, noise_px=1.0)
-    problem, _, _, _ = _prepare(_start(truth), rec, ("S", "K", "C_f"), 0.02, 4, None)
+    problem = _problem(_start(truth), rec)
     z = np.array([0.1, -0.2])
     cost, shift, s = problem.profile(z)
     direct = []
+    max_shift = float(problem.grid.max_time_shift)
     for j in range(problem.n_shifts):
+        if j / (2 * FPS) > max_shift:
+            break
         zz = np.r_[z, j / (2 * FPS) / float(problem.period)]
         g, ok = problem.shape(zz)
         assert ok
-        g = np.asarray(g)
+        g = np.asarray(g)[: rec.n_frames]
         s = np.clip(rec.area @ g / (g @ g), *np.asarray(problem.s_bounds))  # closed form
         direct.append(float(np.sum((rec.area - s * g) ** 2)))
     direct = np.array(direct) / float(np.sum(rec.area**2))
+    assert len(direct) > 2 * FPS * 0.005  # shifts over more than a cycle were tried
     assert float(cost) == pytest.approx(direct.min(), rel=1e-9)
     assert round(float(shift * problem.period) * 2 * FPS) == int(np.argmin(direct))
     y, start_cost = problem.start(z)
@@ -201,15 +209,15 @@ def test_swarm_cost_is_the_best_shift_of_direct_simulations():
 
 
 def test_lm_linearisation_is_the_residuals_jacobian():
-    """The LM sees the residual through a rule that hands it the Jacobian matrix: equal to
-    forward-mode AD of the residual itself, and to central finite differences."""
-    from vfjax.fit import _prepare, _residual
+    """The polish sees the residual through a rule that hands it the Jacobian matrix: equal
+    to forward-mode AD of the residual itself, and to central finite differences."""
+    from vfjax._fit._polish import residual
 
     truth = vfjax.preset("N1")
     rec = _recording(truth, t_start=0.031)
-    problem, _, _, _ = _prepare(_start(truth), rec, ("S", "K", "C_f"), 0.02, 4, None)
+    problem = _problem(_start(truth), rec)
     y = np.array([-0.2, 0.3, 0.4, -0.1])
-    jac = np.asarray(jax.jacfwd(_residual)(y, problem))
+    jac = np.asarray(jax.jacfwd(residual)(y, problem))
     np.testing.assert_allclose(
         jac, np.asarray(jax.jacfwd(problem.residual)(y)), rtol=1e-10, atol=1e-14
     )
@@ -218,6 +226,57 @@ def test_lm_linearisation_is_the_residuals_jacobian():
         e = np.eye(y.size)[i] * h
         fd = (np.asarray(problem.residual(y + e)) - np.asarray(problem.residual(y - e))) / (2 * h)
         assert np.linalg.norm(jac[:, i] - fd) <= 0.02 * np.linalg.norm(fd), i
+
+
+def _compilations():
+    """A counter of XLA compilations, from JAX's monitoring events."""
+    seen = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, duration, **kw: seen.append(event)
+        if event == "/jax/core/compile/backend_compile_duration"
+        else None
+    )
+    return seen
+
+
+def test_a_new_length_and_frame_rate_compile_nothing_new():
+    """After one fit, a recording of another length (same bucket), frame rate and f0 runs
+    through the same compiled programs: no compilation at all."""
+    truth = vfjax.preset("N3")
+    swarm = Swarm(size=8, iterations=4, chunk=4)
+    polish = Polish(max_steps=3)
+    first = _recording(truth, t_start=0.0277, name="first")
+    sim = vfjax.simulate(truth.set(K=0.8 * float(truth.params()["K"])), 6000.0, 170, t_start=0.03)
+    second = Recording(area=np.clip(np.asarray(sim.area), 0, None), fps=6000.0, name="second")
+    assert vfjax.length_bucket(first.n_frames) == vfjax.length_bucket(second.n_frames)
+    fit(truth, first, swarm=swarm, polish=polish, progress=False)
+    seen = _compilations()
+    start = len(seen)
+    result = fit(truth, second, swarm=swarm, polish=polish, progress=False, warmup=0.03)
+    assert len(seen) == start, f"{len(seen) - start} new compilations"
+    assert result.sampling.fps == 6000.0 and result.sampling.n_frames == 170
+    assert np.isfinite(result.nmse)
+
+
+def test_a_fit_in_a_batch_equals_the_fit_alone():
+    """Fit 0 of a batch of three recordings (other lengths, frame rates) equals the same fit
+    run alone: the same key gives the same numbers, whatever the rest of the batch."""
+    truth = vfjax.preset("N1")
+    swarm = Swarm(size=12, iterations=10)
+    recs = [_recording(truth, t_start=0.0301, noise_px=1.0, name="a")]
+    for fps, n, f in ((3000.0, 150, 0.9), (5000.0, 240, 1.1)):
+        sim = vfjax.simulate(truth.set(K=f * float(truth.params()["K"])), fps, n, t_start=0.03)
+        recs.append(Recording(area=np.clip(np.asarray(sim.area), 0, None), fps=fps, name=str(n)))
+    key = jax.random.key(3)
+    batch = fit_many(_start(truth), recs, swarm=swarm, key=key, progress=False)
+    alone = fit_many(_start(truth), recs[:1], swarm=swarm, key=key, progress=False)[0]
+    assert batch[0].pso_trace == pytest.approx(alone.pso_trace, rel=1e-9)
+    assert batch[0].nmse == pytest.approx(alone.nmse, rel=1e-9)
+    for name, value in alone.params.items():
+        assert batch[0].params[name] == pytest.approx(value, rel=1e-9), name
+    assert batch[0].time_shift == pytest.approx(alone.time_shift, rel=1e-9)
+    for rec, r in zip(recs, batch):  # each reported NMSE is that of its fitted GAW
+        assert r.nmse == pytest.approx(float(vfjax.nmse(rec.area, r.fitted_gaw())), rel=1e-9)
 
 
 def test_bad_input_is_refused():
@@ -245,7 +304,7 @@ def test_fits_from_another_subject_find_the_right_basin():
     """From N4's values (t_c measured, K matched to the recording's f0), every seed of the
     demo recording (N3 + 2 px noise) is fitted to its noise floor: no sub-harmonic trap."""
     from vfjax.datasets import demo_recording
-    from vfjax.fit import initial_model
+    from vfjax.presets import initial_model
 
     for seed in range(3):
         rec = demo_recording("N3", seed=seed)

@@ -21,10 +21,22 @@ from . import (  # noqa: E402
     video,
     workflow,
 )
+from ._fit import (  # noqa: E402
+    DEFAULT_PARAMS,
+    FIT_STATUSES,
+    FitResult,
+    Polish,
+    Swarm,
+    default_warmup,
+    fit,
+    fit_many,
+    search_range,
+)
+from ._sampling import Sampling, length_bucket  # noqa: E402
 from ._validate import Constraint, as_parameter  # noqa: E402
 from .cost import nmse  # noqa: E402
+from .descriptors import estimate_closure_duration  # noqa: E402
 from .diagnosis import Candidate, Diagnosis, diagnose, score_tests  # noqa: E402
-from .fit import FitResult, default_warmup, fit, fit_many, initial_model  # noqa: E402
 from .integrator import (  # noqa: E402
     DEFAULT_SUBSTEPS,
     RESULTS,
@@ -34,7 +46,7 @@ from .integrator import (  # noqa: E402
     simulate,
 )
 from .model import VocalFoldModel  # noqa: E402
-from .presets import PRESETS, paper_model, preset  # noqa: E402
+from .presets import PRESETS, initial_model, match_fundamental_frequency, paper_model, preset  # noqa: E402
 from .recording import FRAME_RATE_RANGE_HZ, Recording, load_recording, load_segments  # noqa: E402
 from .subject import Subject  # noqa: E402
 from .terms import (  # noqa: E402
@@ -107,6 +119,15 @@ __all__ = [
     "score_tests",
     "fit",
     "fit_many",
+    "DEFAULT_PARAMS",
+    "FIT_STATUSES",
+    "Polish",
+    "Sampling",
+    "Swarm",
+    "estimate_closure_duration",
+    "length_bucket",
+    "match_fundamental_frequency",
+    "search_range",
     "default_warmup",
     "load_recording",
     "nmse",

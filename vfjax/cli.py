@@ -95,8 +95,7 @@ def _run(args, out, plt) -> int:
 
     # Fit: the embedded demo recording (made by vfjax: N3, 2 px noise, arbitrary start).
     from .datasets import demo_recording
-    from .fit import initial_model
-    from .presets import preset
+    from .presets import initial_model, preset
 
     rec = demo_recording()
     write_recording(rec, out / f"{rec.name}.csv")
@@ -139,12 +138,16 @@ def _fit_and_report(recording, model, out, params, iterations, key_seed):
     import jax
     import matplotlib.pyplot as plt
 
-    from .fit import fit
+    from ._fit import Swarm, fit
     from .io import save_figure
     from .plotting import plot_convergence, plot_overlay
 
     result = fit(
-        model, recording, params=params, iterations=iterations, key=jax.random.key(key_seed)
+        model,
+        recording,
+        params=params,
+        swarm=Swarm(iterations=iterations),
+        key=jax.random.key(key_seed),
     )
     result.to_json(out / f"{recording.name}_fit.json")
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 3.4), gridspec_kw={"width_ratios": [2.2, 1]})
@@ -232,8 +235,8 @@ def cmd_diagnose(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from .fit import initial_model
     from .io import check_output_folder, staged_output
+    from .presets import initial_model
     from .report import write_report
     from .workflow import investigate
 
@@ -262,8 +265,8 @@ def cmd_fit(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from .fit import initial_model
     from .io import check_output_folder, staged_output
+    from .presets import initial_model
 
     check_output_folder(args.out, args.force)
     rec = _load_input(args)

@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 
+from ._fit import FitResult
 from .descriptors import Descriptors, describe
-from .fit import FitResult
 from .phases import CLOSED, PHASE_NAMES
 from .recording import Recording
 

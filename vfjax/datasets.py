@@ -2,8 +2,8 @@
 
 import numpy as np
 
+from ._fit import default_warmup
 from .descriptors import fundamental_frequency
-from .fit import default_warmup
 from .integrator import simulate
 from .presets import preset
 from .recording import Recording

@@ -235,3 +235,52 @@ def describe(area, fps: float, level: float = 0.05) -> Descriptors:
         jitter=rel_diff(T),
         shimmer=rel_diff(amp),
     )
+
+
+def estimate_closure_duration(recording, levels=(0.1, 0.2)) -> float | None:
+    """Closed-phase duration (s) measured on the GAW, or None if the glottis never closes.
+
+    For each closed phase, the times at which the area falls through and rises back through
+    ``levels`` (fractions of the peak) are located to a fraction of a frame, and the width of
+    the closed phase is extrapolated linearly to zero level: ``2 w(L1) - w(L2)``. The longest
+    complete closed phase is returned: the hold lasts t_c in every cycle that closes fully,
+    while cycles that barely close (a modulated pressure, a gap) give shorter ones. The paper
+    takes t_c from the measured GAW; this gives it without the bias of counting frames under
+    a threshold.
+    """
+    a = recording.area
+    peak = a.max()
+    l1, l2 = levels
+    low = a <= l1 * peak
+    if not low.any() or low.all():
+        return None
+
+    def crossing(i, level, down):
+        # fractional frame index where a crosses level*peak between frames i and i+1
+        thr = level * peak
+        return (
+            i + (a[i] - thr) / (a[i] - a[i + 1]) if down else i + (thr - a[i]) / (a[i + 1] - a[i])
+        )
+
+    edges = np.diff(np.r_[0, low.astype(int), 0])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    widths = []
+    for s0, e0 in zip(starts, ends):
+        if s0 == 0 or e0 >= a.size:
+            continue  # a closed phase cut by the recording's ends
+        w = []
+        for level in (l1, l2):
+            i = s0 - 1
+            while i > 0 and a[i] <= level * peak:
+                i -= 1
+            j = e0 - 1
+            while j < a.size - 1 and a[j + 1] <= level * peak:
+                j += 1
+            if a[i] <= level * peak or j >= a.size - 1:
+                break
+            w.append(crossing(j, level, down=False) - crossing(i, level, down=True))
+        if len(w) == 2:
+            widths.append(2 * w[0] - w[1])
+    if not widths or max(widths) <= 0:
+        return None  # no closed phase long enough to measure
+    return float(np.max(widths)) / recording.fps

@@ -60,9 +60,10 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
+from ._fit import FitResult, Polish, Swarm, default_warmup, fit, fit_many, search_range
 from .compare import Comparison, compare, noise_level
-from .fit import FitResult, fit_many, initial_model, search_range
-from .integrator import simulate
+from .integrator import SampledGrid, sampled_grid, simulate_frames, window_size
+from .presets import initial_model
 from .recording import Recording
 from .terms.base import AbstractTerm
 from .terms.effects import CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
@@ -305,35 +306,21 @@ class Diagnosis:
 
 # ----------------------------------------------------------------------------- sensitivities
 class _Sampler(eqx.Module):
-    """Simulates the fitted GAW (clipped at 0) on the recording's frames."""
+    """Simulates a fitted GAW (clipped at 0) as the fit sampled it, padded to the length
+    bucket (one compiled program per model structure and bucket)."""
 
-    fps: float = eqx.field(static=True)
-    n_frames: int = eqx.field(static=True)
-    substeps: int = eqx.field(static=True)
-    warmup: float = eqx.field(static=True)
-    max_time_shift: float = eqx.field(static=True)
+    grid: SampledGrid
+    n_out: int = eqx.field(static=True)
+    n_rows: int = eqx.field(static=True)
 
     def gaw(self, model, shift):
-        """The GAW; differentiable in forward mode (`jax.jacfwd`) only."""
-        sim = simulate(
-            model,
-            self.fps,
-            self.n_frames,
-            substeps=self.substeps,
-            t_start=self.warmup,
-            time_shift=shift,
-            max_time_shift=self.max_time_shift,
-            reverse_mode=False,
-            throw=False,
-        )
+        """The padded GAW; differentiable in forward mode (`jax.jacfwd`) only."""
+        sim = simulate_frames(model, self.grid, shift, n_out=self.n_out, n_rows=self.n_rows)
         return jnp.maximum(sim.area, 0.0)
 
 
-def _sampler(result: FitResult, recording: Recording) -> _Sampler:
-    s = result.settings
-    return _Sampler(
-        recording.fps, recording.n_frames, s["substeps"], s["warmup"], s["max_time_shift"]
-    )
+def _sampler(result: FitResult) -> _Sampler:
+    return _Sampler(sampled_grid(result.sampling), *window_size(result.sampling))
 
 
 @eqx.filter_jit
@@ -412,10 +399,10 @@ def score_tests(
     if variance not in ("hac", "iid"):
         raise ValueError(f"variance must be 'hac' or 'iid', got {variance!r}")
     cands = _as_candidates(result.model, candidates)
-    sampler = _sampler(result, recording)
+    sampler = _sampler(result)
     names = tuple(result.params)
     g0, jf = (
-        np.asarray(a)
+        np.asarray(a)[: recording.n_frames]
         for a in _fitted_columns(sampler, result.model, names, jnp.asarray(result.time_shift))
     )
     r = np.asarray(recording.area, dtype=float) - g0
@@ -461,6 +448,7 @@ def _candidate_columns(result, sampler, cands) -> list[np.ndarray]:
             sampler, _stack(variants), tested, jnp.asarray(points), jnp.asarray(result.time_shift)
         )
     )
+    cols = cols[:, : result.sampling.n_frames]
     return [cols[r][:, :, [tested.index(n) for n in c.tested]] for c, r in zip(cands, rows)]
 
 
@@ -706,16 +694,14 @@ def refit_each(
         if v > 0 and search_range(wide, n) is None:
             given = [v, anchor.get(n, v)] + [s[n] for _, ss in jobs for s in ss if s.get(n, 0) > 0]
             bounds[n] = (min(given) / box, max(given) * box)
-    s = result.settings
     fits = fit_many(
         models,
         [recording] * len(models),
         params=union,
-        iterations=iterations,
-        swarm_size=swarm_size,
-        lm_steps=lm_steps,
-        warmup=s["warmup"] if warmup is None else warmup,
-        substeps=s["substeps"],
+        swarm=Swarm(size=swarm_size, iterations=iterations),
+        polish=Polish(max_steps=lm_steps),
+        warmup=result.sampling.warmup if warmup is None else warmup,
+        substeps=result.sampling.substeps,
         bounds=bounds,
         hold=holds,
     )
@@ -928,9 +914,9 @@ def _confirm(result, recording, jobs, control, fitted, confirm, anchor, iteratio
     reference = min(_error(result), _error(control))
     matters = _error(fitted[top]) <= (1.0 - min_fall) * reference
     swarm_size, deep_iterations = confirm_swarm(confirm, len(cand.tested + cand.extra), matters)
-    warmup = max(result.settings["warmup"], float(type(cand.term).min_warmup))
+    warmup = max(result.sampling.warmup, float(type(cand.term).min_warmup))
     quick = (control, fitted[top])
-    if warmup > result.settings["warmup"]:
+    if warmup > result.sampling.warmup:
         quick = refit_each(
             result,
             recording,
@@ -1044,20 +1030,18 @@ def extend(result: FitResult, recording: Recording, effect, params=None, **fit_k
         effect: the term to add, with its starting values (e.g. ``GlottalGap()``, or a
             diagnosis's ``refits[name].result.model.term(GlottalGap)``).
         params: the effect's parameters to fit (default: all of them).
-        fit_kwargs: passed to `vfjax.fit` (default: 40 PSO iterations, no progress bar, the
+        fit_kwargs: passed to `vfjax.fit` (default: 40 swarm iterations, no progress bar, the
             current fit's substeps, and its warm-up or the effect's ``min_warmup`` if longer).
     Returns the new `FitResult`; its model holds the effect.
     """
-    from .fit import default_warmup, fit
 
     model = result.model.with_effect(effect)
     names = tuple(result.params) + tuple(params or type(effect).parameters)
-    s = result.settings
     kwargs = {
-        "iterations": 40,
+        "swarm": Swarm(iterations=40),
         "progress": False,
-        "substeps": s["substeps"],
-        "warmup": max(s["warmup"], default_warmup(model)),
+        "substeps": result.sampling.substeps,
+        "warmup": max(result.sampling.warmup, default_warmup(model)),
         **fit_kwargs,
     }
     return fit(model, recording, params=names, **kwargs)

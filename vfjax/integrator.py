@@ -38,16 +38,9 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from . import phases
 from ._hermite import hermite, hermite_root, hermite_slope
+from ._sampling import DEFAULT_SUBSTEPS, Sampling, length_bucket
 from .model import VocalFoldModel
 
-#: Default number of RK4 steps per camera frame: the coarsest step whose GAW keeps NMSE < 1e-4
-#: against a 1024-steps-per-frame reference on every set of `benchmarks/accuracy.py` (worst
-#: 3.2e-6) *and* whose derivatives stay close to those of the continuous model at the paper's
-#: grazing closures. With located events RK4 converges at 4th order; 3 steps a frame pass the
-#: first test (2.9e-5), but N1's d GAW / d K is then 10 % off the derivative at 256 steps a
-#: frame, against 2.3 % at 4 and 0.4 % at 6 (at every step the derivative is that of the
-#: computed GAW, equal to its central differences within 1e-5).
-DEFAULT_SUBSTEPS = 4
 #: Event budget per second of simulated time. A glottal cycle has up to 7 events, so the
 #: default budget covers f0 up to ~570 Hz; beyond it `Simulation.complete` may turn False
 #: (each closure hold spares the grid steps it spans, so a recording that closes can go beyond).
@@ -249,6 +242,21 @@ def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one):
     return event, theta, xe, ve, is_flow, is_inner, is_dir
 
 
+#: Compression (cm) over which a closure hold grows from nothing to its full length: the
+#: hold of a fold that turns at a depth d <= 0 below x_0 lasts t_c min(d / _HOLD_RAMP, 1).
+#: The paper's hold (the full t_c for any contact) makes the GAW jump where the turning
+#: point grazes x_0, so that whether a grazing cycle is held closed depends on the last bit
+#: of rounding (a batched and a single simulation then differ by a whole closed phase). The
+#: ramp makes the motion continuous there; 1e-8 cm (0.1 nm) is far below anything a camera
+#: resolves and far above rounding (~1e-18 cm).
+_HOLD_RAMP = 1e-8
+
+
+def _hold_ramp(depth):
+    """Share of the closure hold for a turning point ``depth`` (cm) below x_0."""
+    return jnp.clip(depth / _HOLD_RAMP, 0.0, 1.0)
+
+
 def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
     """One scan iteration: a full grid step, a step up to an event, or a stretch of hold.
 
@@ -256,7 +264,8 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
     ``t_start``)."""
     has_hold = model.closure_duration is not None
     x0, xc = model.contact_displacement, model.subcritical_displacement()
-    t_end = float(n_steps) * h  # the last grid point, as `t_target` computes it
+    # the last grid point, as `t_target` computes it (h, n_steps and origin may be traced)
+    t_end = jnp.asarray(n_steps).astype(float) * h
 
     def body(c: _Carry, _):
         c_flow, c_inner, c_closing = c.flag(_FLOW), c.flag(_INNER), c.flag(_CLOSING)
@@ -282,7 +291,9 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
             x=jnp.where(event, xe, x1),
             v=jnp.where(event, ve, v1),
             hold_left=jnp.where(
-                starts_hold, model.hold_duration(c.t + theta * dt - origin), c.hold_left
+                starts_hold,
+                model.hold_duration(c.t + theta * dt - origin) * _hold_ramp(x0 - xe),
+                c.hold_left,
             )
             if has_hold
             else c.hold_left,
@@ -645,6 +656,156 @@ def _simulate(
     area = model.observe(times, x, dense.displacement)
     diverged = end.flag(_DIVERGED)
     reached = (end.step >= n_steps) & jnp.all(valid)
+    result = RESULTS.where(
+        ~valid_model,
+        RESULTS.invalid_parameters,
+        RESULTS.where(
+            ~shift_ok,
+            RESULTS.time_shift_out_of_range,
+            RESULTS.where(
+                diverged,
+                RESULTS.diverged,
+                RESULTS.where(reached, RESULTS.successful, RESULTS.event_budget_exhausted),
+            ),
+        ),
+    )
+    nan = jnp.nan
+    return Simulation(
+        time=times,
+        area=jnp.where(valid, area, nan),
+        glottal_area=jnp.where(valid, model.subject.area(x), nan),
+        displacement=jnp.where(valid, x, nan),
+        velocity=jnp.where(valid, dense.velocity(times), nan),
+        phase=dense.phase_at(times),
+        diverged=diverged,
+        complete=result == RESULTS.successful,
+        n_events=end.events,
+        result=result,
+        dense=dense,
+    )
+
+
+# ----------------------------------------------------------------- the fits' compiled sampling
+#: Motion kept before the first frame (s): observation terms may read the displacement at
+#: earlier times (a mucosal delay reads x(t - tau), tau <= 1 ms).
+LOOKBACK = 0.002
+#: Event budget of a fit's simulation, per frame of its window.
+_EVENTS_PER_FRAME = 2
+
+
+class SampledGrid(eqx.Module):
+    """A `Sampling` as data, so that one compiled program serves every frame rate, warm-up
+    and time-shift range (`simulate_frames`). Build it with `sampled_grid`.
+
+    Attributes:
+        fps: frame rate (Hz).
+        h: RK4 step (s).
+        t_start: warm-up, the time of the first frame before any shift (s).
+        max_time_shift: largest time shift (s).
+        n_frames: frames that count (the rest of a length bucket is padding).
+        n_steps: grid steps to the last frame at the largest shift.
+        window_step: grid step where the kept motion begins (`LOOKBACK` before t_start).
+        warm_budget: most iterations before the window (steps plus an event budget).
+    """
+
+    fps: Array
+    h: Array
+    t_start: Array
+    max_time_shift: Array
+    n_frames: Array
+    n_steps: Array
+    window_step: Array
+    warm_budget: Array
+
+
+def sampled_grid(sampling: Sampling) -> SampledGrid:
+    """``sampling`` as a `SampledGrid` (concrete arrays)."""
+    h = sampling.step
+    n_steps = max(1, math.ceil(sampling.horizon / h - 1e-9))
+    window_step = max(0, math.floor((sampling.warmup - LOOKBACK) / h))
+    warm_budget = window_step + int(EVENTS_PER_SECOND * sampling.warmup) + 16
+    if n_steps + warm_budget > MAX_ITERATIONS:
+        raise ValueError(
+            f"simulating {sampling.horizon:.6g} s at {sampling.substeps} steps per frame of "
+            f"{sampling.fps:g} Hz needs more than the {MAX_ITERATIONS} iterations one "
+            "simulation may take: check the frame rate, frame count and warm-up"
+        )
+    i32 = np.int32
+    return SampledGrid(
+        fps=jnp.asarray(sampling.fps),
+        h=jnp.asarray(h),
+        t_start=jnp.asarray(sampling.warmup),
+        max_time_shift=jnp.asarray(sampling.max_time_shift),
+        n_frames=jnp.asarray(sampling.n_frames, i32),
+        n_steps=jnp.asarray(n_steps, i32),
+        window_step=jnp.asarray(window_step, i32),
+        warm_budget=jnp.asarray(warm_budget, i32),
+    )
+
+
+def window_size(sampling: Sampling) -> tuple[int, int]:
+    """The static sizes of a compiled fit's simulation: (frames, rows). Frames: the
+    `length_bucket` of the frame count; rows: the dense output's length, enough for the
+    frames, the time-shift range and the lookback (bucketed alike) at ``substeps`` steps and
+    `_EVENTS_PER_FRAME` events per frame."""
+    extra = sampling.shift_frames + math.ceil(LOOKBACK * sampling.fps) + 2
+    frames = length_bucket(sampling.n_frames)
+    rows = (sampling.substeps + _EVENTS_PER_FRAME) * (frames + length_bucket(extra))
+    return frames, _CHUNK * -(-rows // _CHUNK)
+
+
+def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows: int):
+    """The frames of one simulation for the compiled fits: as `simulate` with
+    ``reverse_mode=False`` and ``throw=False``, but with every size that depends on the
+    recording traced (``grid``) and the frames padded to ``n_out`` (`window_size`).
+
+    The motion up to the window (`LOOKBACK` before the first frame) runs in a loop that keeps
+    no rows and whose length is data; the window's motion is kept in ``n_rows`` rows, so
+    ``Simulation.dense`` covers the window only. Padding frames (beyond ``grid.n_frames``)
+    have zero area. Forward-mode derivatives only (`jax.jvp`, `jax.jacfwd`).
+    """
+    x0 = model.contact_displacement
+    xc = model.subcritical_displacement()
+    valid_model = model.is_valid()
+    start = _Carry(
+        t=jnp.zeros((), float),
+        x=jnp.asarray(x0, dtype=float),
+        v=jnp.zeros((), float),
+        hold_left=jnp.zeros((), float),
+        step=jnp.zeros((), jnp.int32),
+        flags=_pack(False, x0 <= xc, False, False),
+        events=jnp.zeros((), jnp.int32),
+    )
+    warm = _iteration(model, grid.h, grid.window_step, grid.t_start)
+
+    def warm_trip(state):
+        i, c = state
+        new, _ = jax.lax.scan(warm, c, None, length=_CHUNK, unroll=_UNROLL)
+        return i + _CHUNK, jax.tree.map(lambda a, b: jnp.where(i < grid.warm_budget, a, b), new, c)
+
+    def warming(state):
+        i, c = state
+        return eqxi.unvmap_any((i < grid.warm_budget) & c.active(grid.window_step))
+
+    _, begin = jax.lax.while_loop(warming, warm_trip, (jnp.zeros((), jnp.int32), start))
+    warmed = ~begin.active(grid.window_step) | begin.flag(_DIVERGED)
+    end, (ts, xs, vs, codes) = _integrate_loop(
+        model, begin, h=grid.h, n_steps=grid.n_steps, n_iter=n_rows, origin=grid.t_start
+    )
+    dense = DenseOutput(
+        t=jnp.concatenate([begin.t[None], ts]),
+        x=jnp.concatenate([begin.x[None], xs]),
+        v=jnp.concatenate([begin.v[None], vs]),
+        phase=jnp.concatenate([codes, codes[-1:]]),
+    )
+    counted = jnp.arange(n_out) < grid.n_frames
+    times = grid.t_start + time_shift + jnp.arange(n_out) / grid.fps
+    x = dense.displacement(times)
+    valid = ((times <= end.t + 1e-12) | ~counted) & valid_model
+    area = jnp.where(counted, model.observe(times, x, dense.displacement), 0.0)
+    shift_ok = (time_shift >= -1e-12) & (time_shift <= grid.max_time_shift + 1e-12)
+    diverged = end.flag(_DIVERGED)
+    reached = (end.step >= grid.n_steps) & jnp.all(valid) & warmed
     result = RESULTS.where(
         ~valid_model,
         RESULTS.invalid_parameters,

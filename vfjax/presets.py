@@ -1,6 +1,11 @@
 """The paper's subjects N1-N4 (Tables 2-4) with the subglottal pressure of `MODEL_SPEC.md`."""
 
+import numpy as np
+
+from .descriptors import estimate_closure_duration, fundamental_frequency
+from .integrator import simulate
 from .model import VocalFoldModel
+from .recording import Recording
 from .subject import Subject
 from .terms.paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
 from .units import DYNE_PER_CM_PER_N_PER_M
@@ -100,3 +105,50 @@ def preset(name: str, **overrides) -> VocalFoldModel:
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
     return paper_model(**{**PRESETS[name], **overrides})
+
+
+def initial_model(recording: Recording, template: str | None = None) -> VocalFoldModel:
+    """A starting model for ``recording``: the paper's preset for its sex (N1 male, N3
+    female, or ``template``), with the sidecar's fold mass and length if given, and the closure
+    duration t_c measured on the GAW (`estimate_closure_duration`), as the paper did."""
+    sex = recording.metadata.get("sex")
+    model = preset(template or ("N3" if sex == "female" else "N1"))
+    if "vocal_fold_length_cm" in recording.metadata:
+        model = model.set(l=recording.metadata["vocal_fold_length_cm"])
+    if "vocal_fold_mass_g" in recording.metadata:
+        model = model.set(M=recording.metadata["vocal_fold_mass_g"])
+    t_c = estimate_closure_duration(recording)
+    if t_c is not None and model.closure_duration is not None:
+        model = model.set(t_c=t_c)
+    return match_fundamental_frequency(model, recording)
+
+
+def match_fundamental_frequency(model: VocalFoldModel, recording: Recording, steps: int = 4):
+    """``model`` with K scaled so that its f0 matches the recording's (secant steps in log K
+    against log f0). A start at the right f0 keeps the swarm away from the sub-harmonic
+    minima (a model at half the f0 fitting every other pulse)."""
+    target = fundamental_frequency(recording.area, recording.fps)
+    if not np.isfinite(target):
+        return model
+    n = max(recording.n_frames, int(0.08 * recording.fps))
+
+    def f0_of(k):
+        sim = simulate(model.set(K=k), recording.fps, n, t_start=0.02, throw=False)
+        if not bool(sim.complete):
+            return float("nan")
+        return fundamental_frequency(np.asarray(sim.area), recording.fps)
+
+    k0 = float(model.params()["K"])
+    f_0 = f0_of(k0)
+    if not np.isfinite(f_0):
+        return model
+    k1 = k0 * (target / f_0) ** 2
+    for _ in range(steps):
+        f_1 = f0_of(k1)
+        if not np.isfinite(f_1) or abs(f_1 / target - 1) < 0.005:
+            break
+        slope = (np.log(f_1) - np.log(f_0)) / (np.log(k1) - np.log(k0)) if k1 != k0 else 0.5
+        slope = slope if slope > 0.05 else 0.5
+        k0, f_0 = k1, f_1
+        k1 = k1 * np.exp(np.log(target / f_1) / slope)
+    return model.set(K=k1) if np.isfinite(f0_of(k1)) else model

@@ -1,7 +1,7 @@
 """Models and fit results to and from plain JSON-ready dicts, without loss.
 
 A saved file is data, never code. Reading one validates it against its schema
-(``data_schema/fit_result.schema.json``) before anything is built, and resolves each term's
+(``vfjax/schemas/fit_result.schema.json``) before anything is built, and resolves each term's
 class name only among vfjax's own terms (`BUILTIN_TERMS`) and the classes the caller passes
 on purpose (``terms=``): nothing is imported, and no other class is called.
 """
@@ -28,8 +28,7 @@ BUILTIN_TERMS: tuple[type[AbstractTerm], ...] = (
 )
 #: Saved fit results larger than this (bytes) are refused unread.
 MAX_FILE_BYTES = 64 * 2**20
-SCHEMA_ID = "vfjax.fit_result/2"
-_READABLE_SCHEMAS = ("vfjax.fit_result/1", SCHEMA_ID)
+SCHEMA_ID = "vfjax.fit_result/3"
 
 
 def _qualname(cls: type) -> str:
@@ -134,34 +133,57 @@ def model_from_dict(d: dict, terms=(), where: str = "model") -> VocalFoldModel:
 
 
 def fit_result_to_dict(result) -> dict:
-    """A `FitResult` as a JSON-ready dict (schema: data_schema/fit_result.schema.json)."""
+    """A `FitResult` as a JSON-ready dict (schema: vfjax/schemas/fit_result.schema.json)."""
     out = {f.name: getattr(result, f.name) for f in dataclasses.fields(result)}
     out["model"] = None if result.model is None else model_to_dict(result.model)
+    out["sampling"] = result.sampling.to_dict()
+    out["swarm"] = result.swarm.to_dict()
     out["schema"] = SCHEMA_ID
     return out
 
 
 def validate_fit_result(d, where: str = "fit result") -> None:
-    """Check a saved fit result against ``data_schema/fit_result.schema.json``; the error
+    """Check a saved fit result against ``vfjax/schemas/fit_result.schema.json``; the error
     names the field and what is wrong with it."""
     check_schema(d, "fit_result.schema.json", where, "not a vfjax fit result")
 
 
-def fit_result_from_dict(d: dict, terms=(), where: str = "fit result"):
-    """Inverse of `fit_result_to_dict`: validated against the schema first; ``terms`` as
-    for `model_from_dict`."""
-    from .fit import FitResult
+def _from_settings(d: dict, where: str) -> dict:
+    """The /3 fields of a /1 or /2 file's ``settings``."""
+    settings = d.pop("settings")
+    if "fps" not in settings or "n_frames" not in settings:
+        raise ValueError(
+            f"{where}: this {d['schema']} file does not record the frame rate and frame "
+            "count of its fit; fit the recording again"
+        )
+    pso = settings.get("pso", {})
+    d["sampling"] = {k: settings[k] for k in ("fps", "n_frames", "substeps", "warmup")}
+    d["sampling"]["max_time_shift"] = settings["max_time_shift"]
+    d["bounds"] = settings.get("bounds", {})
+    d["swarm"] = {
+        "size": settings.get("swarm_size", 48),
+        "iterations": settings.get("iterations", 60),
+        **{k: v for k, v in pso.items() if k != "boundary" or isinstance(v, str)},
+    }
+    return d
 
+
+def fit_result_from_dict(d: dict, terms=(), where: str = "fit result") -> dict:
+    """Inverse of `fit_result_to_dict`, as the fields of a `FitResult` (validated against the
+    schema first; ``terms`` as for `model_from_dict`), with ``sampling`` and ``swarm`` as
+    dicts of their fields."""
     validate_fit_result(d, where)
     d = dict(d)
+    if d["schema"] != SCHEMA_ID:
+        d = _from_settings(d, where)
     schema = d.pop("schema")
-    d.setdefault("status", "unknown" if schema != SCHEMA_ID else "successful")
+    d.setdefault("status", "unknown" if schema == "vfjax.fit_result/1" else "successful")
     d["model"] = None if d.get("model") is None else model_from_dict(d["model"], terms, where)
-    return FitResult(**d)
+    return d
 
 
-def read_fit_result(path, terms=()):
-    """A `FitResult` from a JSON file written by `FitResult.to_json`; see
+def read_fit_result(path, terms=()) -> dict:
+    """The fields of a `FitResult` from a JSON file written by `FitResult.to_json`; see
     `fit_result_from_dict`."""
     path = pathlib.Path(path)
     if not path.exists():

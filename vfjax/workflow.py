@@ -9,8 +9,9 @@ vfjax.report.write_report(study, recording, "out/")
 import dataclasses
 from collections.abc import Sequence
 
+from ._fit import FitResult, Swarm, fit
 from .diagnosis import CONFIRM, Diagnosis, diagnose
-from .fit import FitResult, fit, initial_model
+from .presets import initial_model
 from .recording import Recording
 
 
@@ -76,14 +77,13 @@ def extend_from(
             f"candidate); candidates: {sorted(diagnosis.refits)}"
         )
     start = diagnosis.refits[name].result
-    s = start.settings
     polished = fit(
         start.model,
         recording,
         params=tuple(start.params),
-        iterations=iterations,
-        warmup=s["warmup"],
-        substeps=s["substeps"],
+        swarm=Swarm(iterations=iterations),
+        warmup=start.sampling.warmup,
+        substeps=start.sampling.substeps,
         progress=False,
     )
     return polished if polished.nmse < start.nmse else start
@@ -117,7 +117,9 @@ def investigate(
         progress: print what happens.
     """
     model = initial_model(recording) if model is None else model
-    current = fit(model, recording, params=params, iterations=iterations, progress=progress)
+    current = fit(
+        model, recording, params=params, swarm=Swarm(iterations=iterations), progress=progress
+    )
     if progress:
         print(f"fit: NMSE {current.nmse:.4g}")
     done = []

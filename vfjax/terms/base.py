@@ -53,7 +53,7 @@ class AbstractTerm(eqx.Module):
     #: ... and where the derivatives are taken, if not exactly at the off-values.
     score_point: ClassVar[dict[str, float]] = {}
     #: Search range ``(low, high, scale)`` of parameters fitted in linear coordinates (those
-    #: starting at an off-value of 0), in the parameter's unit; see `vfjax.fit.search_range`.
+    #: starting at an off-value of 0), in the parameter's unit; see `vfjax.search_range`.
     ranges: ClassVar[dict[str, tuple[float, float, float]]] = {}
     #: The least simulated time before the first frame (s) that a fit of a model with this
     #: term needs (`vfjax.fit`'s default warm-up is the largest of its terms'): a term whose

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
 from .._validate import as_parameter, finite, nonnegative, positive
+from ..descriptors import estimate_closure_duration
 from .base import AbstractForce, AbstractTerm, Context
 
 
@@ -169,8 +170,6 @@ class ClosureHold(AbstractTerm):
     @classmethod
     def guess(cls, recording) -> dict[str, float]:
         """t_c: the closed-phase duration measured on the GAW."""
-        from ..fit import estimate_closure_duration
-
         t_c = estimate_closure_duration(recording)
         return {} if t_c is None else {"t_c": t_c}
 

@@ -1,8 +1,9 @@
 """Particle swarm optimisation with the whole swarm evaluated as one batched call.
 
 The swarm's cost function takes a (particles, dims) array and returns (particles,) costs, so a
-vmapped simulator evaluates every particle in one call per iteration. Iterations run in jitted
-chunks (a `lax.scan`), so a progress bar and a callback can run between chunks.
+vmapped simulator evaluates every particle in one call per iteration. Iterations run in
+compiled chunks of fixed length whose number of live iterations is data, so that any
+iteration count runs through one program, with progress reported between chunks.
 """
 
 from collections.abc import Callable
@@ -11,6 +12,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array
+
+from ._options import Swarm
 
 
 class SwarmState(NamedTuple):
@@ -23,24 +26,6 @@ class SwarmState(NamedTuple):
     global_position: Array  # (d,)
     global_cost: Array  # ()
     key: Array
-
-
-class SwarmSettings(NamedTuple):
-    """PSO constants (Clerc-Kennedy constriction by default).
-
-    Attributes:
-        inertia: velocity inertia w.
-        cognitive: pull towards a particle's own best, c1.
-        social: pull towards the swarm's best, c2.
-        max_speed: velocity clamp as a fraction of each dimension's range.
-        boundary: "reflect" (mirror at the bound, velocity reversed) or "clip".
-    """
-
-    inertia: float = 0.7298
-    cognitive: float = 1.49618
-    social: float = 1.49618
-    max_speed: float = 0.25
-    boundary: str = "reflect"
 
 
 def _finite_or_inf(cost):
@@ -74,7 +59,7 @@ def init_swarm(cost_fn, lower, upper, n_particles: int, key, start=None) -> Swar
     )
 
 
-def swarm_step(cost_fn, lower, upper, settings: SwarmSettings, state: SwarmState) -> SwarmState:
+def swarm_step(cost_fn, lower, upper, settings: Swarm, state: SwarmState) -> SwarmState:
     """One PSO iteration: move every particle, evaluate the swarm in one call, update bests."""
     key, k1, k2 = jax.random.split(state.key, 3)
     shape = state.position.shape
@@ -100,12 +85,14 @@ def swarm_step(cost_fn, lower, upper, settings: SwarmSettings, state: SwarmState
     return SwarmState(x, v, best_position, best_cost, best_position[i], best_cost[i], key)
 
 
-def run_chunk(cost_fn: Callable, lower, upper, settings, state, n: int):
-    """``n`` iterations in one `lax.scan`; returns the state and the global best cost per
-    iteration."""
+def run_chunk(cost_fn: Callable, lower, upper, settings: Swarm, state, live):
+    """``settings.chunk`` iterations in one `lax.scan`, of which the first ``live`` (data)
+    move the swarm and the rest leave it as it is; returns the state and the global best
+    cost after each iteration."""
 
-    def body(s, _):
-        s = swarm_step(cost_fn, lower, upper, settings, s)
+    def body(s, k):
+        moved = swarm_step(cost_fn, lower, upper, settings, s)
+        s = jax.tree.map(lambda a, b: jnp.where(k < live, a, b), moved, s)
         return s, s.global_cost
 
-    return jax.lax.scan(body, state, None, length=n)
+    return jax.lax.scan(body, state, jnp.arange(settings.chunk))

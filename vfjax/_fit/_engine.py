@@ -1,0 +1,294 @@
+"""The engine: every fit runs as a batch (recordings x starts) through compiled programs.
+
+Stage 1, global: a particle swarm (`Swarm`), every particle of every fit simulated in one
+vmapped call per iteration, in compiled chunks of iterations (progress is reported between
+chunks). Stage 2, local: one vmapped `optimistix.least_squares` call (`Polish`, by default
+Levenberg-Marquardt with the best point kept) from each fit's swarm optimum, with no host
+round trip per step.
+
+What decides the compiled programs: the model's structure (its terms), the fitted names, the
+batch size, the length bucket (`vfjax.Sampling`, `length_bucket`), the swarm's size and
+chunk, and the polish. Everything else (the recordings, frame rates, warm-ups, time-shift
+ranges, starting values, bounds, iteration counts) is data. A fit's result does not depend on
+the batch it ran in.
+"""
+
+import dataclasses
+import sys
+import time
+from collections.abc import Callable, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._sampling import DEFAULT_SUBSTEPS
+from ..model import VocalFoldModel
+from ..recording import Recording
+from ._options import Polish, Swarm
+from ._polish import polish as _polish_one
+from ._problem import bounds_in_units, default_warmup, fit_sampling, prepare, program_size
+from ._result import FitResult, fit_status
+from ._swarm import init_swarm, run_chunk
+
+#: The parameters a fit adjusts by default: the paper's S, K and C_f.
+DEFAULT_PARAMS = ("S", "K", "C_f")
+#: The default swarm (48 particles, 60 iterations) and polish (Levenberg-Marquardt, 40 steps).
+DEFAULT_SWARM = Swarm()
+DEFAULT_POLISH = Polish()
+
+
+@eqx.filter_jit
+def _swarm_start(batch, lowers, uppers, keys, swarm: Swarm):
+    def one(p, lo, hi, k):
+        cost = jax.vmap(p.swarm_cost)
+        return init_swarm(cost, lo, hi, swarm.size, k, jnp.zeros(lo.shape))
+
+    return jax.vmap(one)(batch, lowers, uppers, keys)
+
+
+@eqx.filter_jit
+def _swarm_chunk(batch, lowers, uppers, states, live, swarm: Swarm):
+    def one(p, lo, hi, s):
+        return run_chunk(jax.vmap(p.swarm_cost), lo, hi, swarm, s, live)
+
+    return jax.vmap(one)(batch, lowers, uppers, states)
+
+
+@eqx.filter_jit
+def _polish_start(batch, positions):
+    return jax.vmap(lambda p, z: p.start(z))(batch, positions)
+
+
+@eqx.filter_jit
+def _polish_batch(batch, y0, polish: Polish):
+    return jax.vmap(lambda p, y: _polish_one(p, y, polish))(batch, y0)
+
+
+def _result_name(result, index) -> str:
+    """optimistix's result code of member ``index`` as a plain string."""
+    import optimistix as optx
+
+    for name in ("successful", "max_steps_reached", "nonlinear_divergence", "singular"):
+        member = getattr(optx.RESULTS, name, None)
+        if member is not None and bool(np.asarray(result == member)[index]):
+            return name
+    return "unknown"
+
+
+def _common_coordinates(problems) -> tuple[bool, ...]:
+    """The coordinate (linear or log) of each parameter, shared by a batch: a held
+    parameter takes the one its fitted counterparts use (either keeps it at its value)."""
+    common = []
+    for i, name in enumerate(problems[0].names):
+        kinds = {p.linear[i] for p in problems if p.free[i]} or {problems[0].linear[i]}
+        if len(kinds) > 1:
+            raise ValueError(
+                f"fit_many: {name} starts at 0 in some fits (linear search) and "
+                "away from 0 in others (log search); start them alike"
+            )
+        common.append(kinds.pop())
+    return tuple(common)
+
+
+def fit_many(
+    model: VocalFoldModel | Sequence[VocalFoldModel],
+    recordings: Sequence[Recording],
+    params: Sequence[str] = DEFAULT_PARAMS,
+    *,
+    bounds: dict | None = None,
+    swarm: Swarm = DEFAULT_SWARM,
+    polish: Polish | None = DEFAULT_POLISH,
+    warmup: float | None = None,
+    substeps: int = DEFAULT_SUBSTEPS,
+    key=None,
+    hold: Sequence[Sequence[str]] | None = None,
+    progress: bool | None = None,
+    callback: Callable[[int, float], None] | None = None,
+) -> list[FitResult]:
+    """Fit ``params`` of one model structure to many recordings as one batched job.
+
+    Every swarm iteration simulates all particles of all fits in one vmapped call, and the
+    polish runs all fits together in one compiled solve. The recordings may differ in length,
+    frame rate and f0: they are padded to the longest one's length bucket. ``model`` is one
+    model for all, or one model per recording (of one structure: the same terms; e.g.
+    several starting points for one recording). Fit i's result depends only on its model,
+    recording, hold and key ``jax.random.fold_in(key, i)``, not on the rest of the batch.
+
+    Arguments:
+        model: the starting model(s), with every non-fitted parameter set (e.g.
+            `vfjax.initial_model(recording)`); the fitted parameters' values are the centre
+            of the search.
+        recordings: the measured GAWs (`vfjax.Recording`).
+        params: names of the parameters to fit (the paper: S, K, C_f; t_c and P_s optional).
+        bounds: ``{name: (low, high)}`` in the parameter's unit; defaults:
+            `DEFAULT_FACTORS` times the starting value, or `search_range`. They bound the
+            swarm's search (and the projected S); the polish is a local, unconstrained
+            refinement from the swarm's best.
+        swarm: the global stage's settings (`Swarm`: particles, iterations, ...).
+        polish: the local stage (`Polish`: an optimistix least-squares solver and its step
+            budget); None: the swarm's best point.
+        warmup: simulated time before the first frame (s); default: the longest
+            `default_warmup` of the models.
+        substeps: RK4 steps per frame.
+        key: `jax.random` key; the same key gives the same results. Default: key(0).
+        hold: for each fit, names among ``params`` (S excepted) that stay at that model's
+            value: fits of different parameter subsets of one model then share one batch and
+            one program (the diagnosis refits every candidate effect this way). A held
+            parameter is left out of its `FitResult`'s ``params``.
+        progress: show a progress bar (default: on a terminal, for more than 20 iterations).
+        callback: called as ``callback(iteration, best_nmse)`` after each compiled chunk of
+            swarm iterations and after the polish (best NMSE over the batch).
+
+    Returns:
+        One `FitResult` per recording (timings are those of the whole batch).
+    """
+    t_all = time.perf_counter()
+    recordings = list(recordings)
+    if not recordings:
+        raise ValueError("recordings is empty")
+    models = [model] * len(recordings) if isinstance(model, VocalFoldModel) else list(model)
+    if len(models) != len(recordings):
+        raise ValueError(f"got {len(models)} models for {len(recordings)} recordings")
+    structure = jax.tree.structure(models[0])
+    if any(jax.tree.structure(m) != structure for m in models[1:]):
+        raise ValueError("fit_many's models must share one structure (the same terms)")
+    if not isinstance(swarm, Swarm):
+        raise TypeError(f"swarm must be a vfjax.Swarm, got {type(swarm).__name__}")
+    if polish is not None and not isinstance(polish, Polish):
+        raise TypeError(f"polish must be a vfjax.Polish or None, got {type(polish).__name__}")
+    hold = [()] * len(models) if hold is None else [tuple(h) for h in hold]
+    if len(hold) != len(models):
+        raise ValueError(f"got {len(hold)} hold lists for {len(recordings)} recordings")
+    key = jax.random.key(0) if key is None else key
+    warmup = max(default_warmup(m) for m in models) if warmup is None else float(warmup)
+
+    for r in recordings:
+        if not isinstance(r, Recording):
+            raise TypeError(f"recording must be a vfjax.Recording, got {type(r).__name__}")
+    samplings = [fit_sampling(r, warmup, substeps) for r in recordings]
+    sizes = [program_size(s) for s, _ in samplings]
+    size = tuple(max(x) for x in zip(*sizes))
+    prepared = [
+        prepare(m, r, params, s, period, bounds, h, size)
+        for m, r, (s, period), h in zip(models, recordings, samplings, hold)
+    ]
+    if len({p.fit_s for p, _, _ in prepared}) > 1:
+        raise ValueError("fit_many: S is fitted for pixel recordings only; do not mix units")
+    linear = _common_coordinates([p for p, _, _ in prepared])
+    problems = [dataclasses.replace(p, linear=linear) for p, _, _ in prepared]
+    batch = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
+    lowers = jnp.stack([lo for _, lo, _ in prepared])
+    uppers = jnp.stack([hi for _, _, hi in prepared])
+    # fit i's key depends on i alone, not on the batch's size
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(len(problems)))
+    program = swarm.program()
+
+    show = progress if progress is not None else (swarm.iterations > 20 and sys.stderr.isatty())
+    bar = None
+    if show:
+        from tqdm.auto import tqdm
+
+        name = recordings[0].name if len(recordings) == 1 else f"{len(recordings)} recordings"
+        bar = tqdm(total=swarm.iterations + (1 if polish else 0), desc=f"fit {name}", leave=False)
+
+    # Stage 1: the swarm, in chunks.
+    t0 = time.perf_counter()
+    states = _swarm_start(batch, lowers, uppers, keys, program)
+    traces = [np.asarray(states.global_cost)[:, None]]
+    times = [time.perf_counter() - t_all]
+    done = 0
+    while done < swarm.iterations:
+        live = min(swarm.chunk, swarm.iterations - done)
+        states, costs = _swarm_chunk(batch, lowers, uppers, states, jnp.asarray(live), program)
+        traces.append(np.asarray(costs)[:, :live])
+        now = time.perf_counter() - t_all
+        times += np.linspace(times[-1], now, live + 1)[1:].tolist()
+        done += live
+        best = float(np.min(traces[-1][:, -1]))
+        if bar is not None:
+            bar.update(live)
+            bar.set_postfix(nmse=f"{best:.3g}")
+        if callback is not None:
+            callback(done, best)
+    pso_traces = np.concatenate(traces, axis=1)
+    t_pso = time.perf_counter() - t0
+
+    # Stage 2: the polish, one compiled solve for the whole batch.
+    t1 = time.perf_counter()
+    y0, c0 = _polish_start(batch, states.global_position)
+    c0 = np.asarray(c0)
+    if polish is not None:
+        y, cost, steps, codes = _polish_batch(batch, y0, polish)
+        y, cost, steps = np.asarray(y), np.asarray(cost), np.asarray(steps)
+        names = [_result_name(codes, i) for i in range(len(problems))]
+    else:
+        y, cost, steps = np.asarray(y0), c0, np.zeros(len(problems), int)
+        names = ["not run"] * len(problems)
+    t_lm = time.perf_counter() - t1
+    if bar is not None:
+        bar.update(1 if polish else 0)
+        bar.close()
+    if callback is not None and polish is not None:
+        callback(swarm.iterations + 1, float(np.min(cost)))
+    times.append(times[-1])
+    times.append(time.perf_counter() - t_all)
+
+    timings = {
+        "pso_s": t_pso,
+        "lm_s": t_lm,
+        "total_s": time.perf_counter() - t_all,
+        "batch_size": len(recordings),
+    }
+    results = []
+    for i, (rec, problem, (lo, hi)) in enumerate(
+        zip(recordings, problems, ((p[1], p[2]) for p in prepared))
+    ):
+        fitted, shift = problem.unpack(jnp.asarray(y[i]))
+        fitted_names = tuple(n for n in params if n not in hold[i])
+        values = fitted.params()
+        box = {n: b for n, b in bounds_in_units(problem, lo, hi).items() if n in fitted_names}
+        floors = dict(zip(problem.names, np.asarray(problem.floor)))
+        status, of_mean = fit_status(rec.area, float(cost[i]), values, box, floors)
+        units = fitted.parameter_units()
+        n_sims = swarm.size * (1 + swarm.iterations) + int(steps[i]) * (1 + y.shape[1]) + 3
+        results.append(
+            FitResult(
+                params={n: float(values[n]) for n in fitted_names},
+                units={n: units[n] for n in fitted_names},
+                time_shift=shift,
+                nmse=float(cost[i]),
+                sampling=samplings[i][0],
+                bounds=box,
+                swarm=swarm,
+                pso_trace=pso_traces[i].tolist(),
+                lm_trace=[float(c0[i]), float(cost[i])],
+                timings=timings,
+                trace_times=list(times),
+                n_simulations=n_sims,
+                optimistix_result=names[i],
+                model=fitted,
+                recording_name=rec.name,
+                status=status,
+                nmse_of_mean=of_mean,
+            )
+        )
+    return results
+
+
+def fit(
+    model: VocalFoldModel,
+    recording: Recording,
+    params: Sequence[str] = DEFAULT_PARAMS,
+    **options,
+) -> FitResult:
+    """Fit ``params`` of ``model`` to ``recording``: a particle swarm, then a polish.
+
+    `fit_many` of one recording: the same options (``bounds``, ``swarm``, ``polish``,
+    ``warmup``, ``substeps``, ``key``, ``progress``, ``callback``) and the same compiled
+    programs; see there.
+    """
+    if "hold" in options:
+        raise TypeError("fit takes no 'hold' (that is fit_many's, for batches of subsets)")
+    return fit_many(model, [recording], params, **options)[0]

@@ -1,0 +1,74 @@
+"""The options of a fit: the swarm's and the polish's settings, as objects."""
+
+import equinox as eqx
+import optimistix as optx
+
+
+class Swarm(eqx.Module):
+    """The global stage of a fit: a particle swarm (Clerc-Kennedy constriction by default),
+    each iteration one batched simulation of every particle.
+
+    Attributes:
+        size: particles per fit.
+        iterations: swarm iterations (0: polish from the starting model's values).
+        chunk: iterations per compiled chunk; progress is reported between chunks.
+        inertia: velocity inertia w.
+        cognitive: pull towards a particle's own best, c1.
+        social: pull towards the swarm's best, c2.
+        max_speed: velocity clamp, as a fraction of each coordinate's range.
+        boundary: "reflect" (mirror at the bound, velocity reversed) or "clip".
+    """
+
+    size: int = eqx.field(default=48, converter=int)
+    iterations: int = eqx.field(default=60, converter=int)
+    chunk: int = eqx.field(default=10, converter=int)
+    inertia: float = eqx.field(default=0.7298, converter=float)
+    cognitive: float = eqx.field(default=1.49618, converter=float)
+    social: float = eqx.field(default=1.49618, converter=float)
+    max_speed: float = eqx.field(default=0.25, converter=float)
+    boundary: str = "reflect"
+
+    def __check_init__(self):
+        if self.size < 1 or self.iterations < 0 or self.chunk < 1:
+            raise ValueError(
+                "Swarm: size and chunk must be >= 1 and iterations >= 0, got "
+                f"size={self.size}, iterations={self.iterations}, chunk={self.chunk}"
+            )
+        if self.boundary not in ("reflect", "clip"):
+            raise ValueError(f"Swarm: boundary must be 'reflect' or 'clip', got {self.boundary!r}")
+
+    def to_dict(self) -> dict:
+        """The fields by name (for JSON)."""
+        return {f: getattr(self, f) for f in self.__dataclass_fields__}
+
+    def program(self) -> "Swarm":
+        """The settings that shape the compiled swarm (iterations run as data)."""
+        return Swarm(
+            self.size,
+            0,
+            self.chunk,
+            self.inertia,
+            self.cognitive,
+            self.social,
+            self.max_speed,
+            self.boundary,
+        )
+
+
+class Polish(eqx.Module):
+    """The local stage of a fit: an optimistix least-squares solver run from the swarm's
+    best point on the residual vector (forward-mode Jacobian through the simulator), keeping
+    the best point it sees (`optimistix.BestSoFarLeastSquares`).
+
+    Attributes:
+        solver: an `optimistix.AbstractLeastSquaresSolver`; tolerances act on the O(1)
+            search coordinates. Default: Levenberg-Marquardt, rtol 1e-6, atol 1e-9.
+        max_steps: most solver steps.
+    """
+
+    solver: optx.AbstractLeastSquaresSolver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-9)
+    max_steps: int = eqx.field(default=40, converter=int)
+
+    def __check_init__(self):
+        if self.max_steps < 1:
+            raise ValueError(f"Polish: max_steps must be >= 1, got {self.max_steps}")

@@ -1,0 +1,338 @@
+"""A fit's problem: the recording, the model, and the coordinates the search moves in.
+
+Parameters are searched in O(1) coordinates: log(p / p_ref) for each fitted physical
+parameter whose value is positive, (p - p_ref) / scale for those whose off-value is 0 or that
+may be negative (`search_range`), and time_shift / T0 for the shift (T0: the recording's cycle
+length, from its f0). Two parameters are profiled out of the swarm's search: the scale S,
+which enters the GAW linearly, is solved in closed form per particle (variable projection),
+and the time shift, periodic and so highly multimodal, is chosen per particle on a grid of
+shifts half a frame apart, read from the same simulation's dense output.
+
+Everything that depends on the recording (its samples, frame rate, warm-up, shift range,
+starting values, bounds) is data: recordings of one length bucket and one model structure
+share one compiled program.
+"""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._sampling import Sampling, length_bucket
+from ..descriptors import fundamental_frequency
+from ..integrator import SampledGrid, sampled_grid, simulate_frames, window_size
+from ..model import VocalFoldModel
+from ..recording import Recording
+
+#: Default search box per parameter, as factors of the starting value.
+DEFAULT_FACTORS = {
+    "K": (0.4, 2.5),
+    "C_f": (0.05, 20.0),
+    "t_c": (0.25, 4.0),
+    "P_s": (0.5, 2.0),
+    "S": (0.1, 10.0),
+}
+#: Parameters searched in linear coordinates (their off-value is 0, or they may be negative):
+#: name -> (default low, default high, scale), in the parameter's unit. Any other parameter
+#: whose starting value is 0 is searched linearly too, with the entry here or (0, 1, 0.1).
+LINEAR = {
+    "a_gap": (0.0, 0.05, 0.01),
+    "eta": (-3000.0, 3000.0, 500.0),
+    "tau": (0.0, 1e-3, 2e-4),
+    "fs_strength": (0.0, 3.0, 0.5),
+    "a_pm": (0.0, 0.5, 0.05),
+    "phi": (-math.pi, math.pi, 1.0),
+    "f_m": (0.5, 30.0, 5.0),
+    "t_c": (0.0, 0.01, 1e-3),
+    "C_min": (0.0, 500.0, 50.0),
+}
+
+#: Simulated time before the first frame (s) of a fit whose terms need no more.
+WARMUP = 0.02
+#: The largest time shift of a fit, in cycles of the recording's f0.
+SHIFT_CYCLES = 1.25
+_SHIFTS_PER_FRAME = 2  # the swarm tries time shifts half a frame apart
+_AREA_TO_PX_SCALE = {"mm2": 1.0, "cm2": 0.01}  # S that turns model mm² per mm² into the unit
+
+
+def default_warmup(model: VocalFoldModel) -> float:
+    """The warm-up (s) a fit of ``model`` uses by default: `WARMUP`, or the longest that one
+    of its terms needs (``min_warmup``, e.g. 0.1 s for a pressure modulation)."""
+    return max([WARMUP] + [float(type(t).min_warmup) for t in model.terms])
+
+
+def search_range(model: VocalFoldModel, name: str) -> tuple[float, float, float] | None:
+    """(low, high, scale) of a linearly searched parameter, in its unit: the term's own
+    ``ranges`` entry, else `LINEAR`'s, else None."""
+    for term in model.terms:
+        if name in term.parameters and name in getattr(term, "ranges", {}):
+            return tuple(float(v) for v in term.ranges[name])
+    return LINEAR.get(name)
+
+
+class Problem(eqx.Module):
+    """One fit as a pytree: every array is data (vmappable over a batch of fits); the static
+    fields fix the compiled program."""
+
+    model: VocalFoldModel
+    grid: SampledGrid
+    measured: jax.Array  # (frames bucket,) the GAW, zero beyond the recording
+    counted: jax.Array  # (frames bucket,) 1 for a frame of the recording, 0 for padding
+    reference: jax.Array  # (n_params,) starting values of the non-S fitted parameters
+    scale: jax.Array  # (n_params,) coordinate scale of the linear ones (unused for log ones)
+    floor: jax.Array  # (n_params,) physical lower limit of the linear ones (-inf: none)
+    free: jax.Array  # (n_params,) 1 for a fitted parameter, 0 for a held one
+    s_reference: jax.Array  # () starting (or fixed) S
+    period: jax.Array  # () T0 estimate (s)
+    s_bounds: jax.Array  # (2,) search bounds of S (px/mm²)
+    names: tuple = eqx.field(static=True)  # fitted physical parameters, S excluded
+    linear: tuple = eqx.field(static=True)  # per name: linear (True) or log coordinate
+    fit_s: bool = eqx.field(static=True)
+    n_out: int = eqx.field(static=True)  # frames bucket
+    n_rows: int = eqx.field(static=True)  # dense-output rows
+    n_shifts: int = eqx.field(static=True)  # shifts the swarm tries (a bucket)
+
+    def model_at(self, z, log_s=None):
+        """The model at coordinates ``z`` (physical parameters first; S at ``log_s``)."""
+        # linear coordinates of parameters that cannot be negative (a gap, a delay) are held
+        # at zero from below, so that an unconstrained polish step stays physical; a held
+        # parameter's coordinate is multiplied by 0: it stays at its reference value
+        z = z[: len(self.names)] * self.free
+        values = {
+            n: jnp.maximum(self.reference[i] + self.scale[i] * z[i], self.floor[i])
+            if lin
+            else self.reference[i] * jnp.exp(z[i])
+            for i, (n, lin) in enumerate(zip(self.names, self.linear))
+        }
+        s = self.s_reference if log_s is None else self.s_reference * jnp.exp(log_s)
+        return self.model.set(**values, S=s)
+
+    def shift(self, z):
+        """The time shift (s) of coordinates ``z``."""
+        return z[len(self.names)] * self.period
+
+    def simulate(self, model, shift):
+        """`simulate_frames` of ``model`` on this problem's sampling."""
+        return simulate_frames(model, self.grid, shift, n_out=self.n_out, n_rows=self.n_rows)
+
+    def shape(self, z):
+        """Simulated GAW at S = 1 (clipped at 0, zero on padding) and whether it is valid."""
+        sim = self.simulate(self.model_at(z).set(S=1.0), self.shift(z))
+        ok = sim.complete
+        return jnp.maximum(jnp.where(ok, sim.area, 0.0), 0.0), ok
+
+    def projected_scale(self, mg, gg):
+        """The S minimising the squared error of a shape g (closed form), kept within its
+        bounds, from the products ``mg`` = measured . g and ``gg`` = g . g (any shape,
+        elementwise)."""
+        if not self.fit_s:
+            return jnp.broadcast_to(self.s_reference, jnp.shape(mg))
+        s = mg / jnp.maximum(gg, 1e-300)
+        return jnp.clip(s, self.s_bounds[0], self.s_bounds[1])
+
+    def profile(self, z_phys):
+        """Best cost over the grid of time shifts, S projected for each; returns (cost, shift
+        as a fraction of T0, projected S).
+
+        One simulation serves every shift. The shifts are half a frame apart, so every
+        shifted frame time lies on one regular grid of half-frame spacing: the observed area
+        is read from the dense output once on that grid, and the products that the
+        projected S and the cost need at every shift are correlations of the measured GAW
+        with the grid's even and odd samples. (Observation terms act pointwise in time.)"""
+        model = self.model_at(jnp.concatenate([z_phys, jnp.zeros(1)])).set(S=1.0)
+        sim = self.simulate(model, 0.0)
+        ok = sim.complete
+        q, n = _SHIFTS_PER_FRAME, self.n_shifts
+        length = q * (-(-n // q) + self.n_out - 1)  # whole rows of q samples
+        times = self.grid.t_start + jnp.arange(length) / (q * self.grid.fps)
+        fine = model.observe(times, sim.dense.displacement(times), sim.dense.displacement)
+        fine = jnp.maximum(jnp.where(ok, fine, 0.0), 0.0)
+        # shift j = q a + b reads the frames from parity[b][a:]: correlations over a
+        parity = fine.reshape(-1, q).T
+
+        def per_shift(signal, kernel):
+            out = jax.vmap(lambda p: jnp.correlate(p, kernel, mode="valid"))(signal)
+            return out.T.reshape(-1)[:n]
+
+        mg = per_shift(parity, self.measured)
+        gg = per_shift(parity**2, self.counted)
+        s = self.projected_scale(mg, gg)
+        mm = jnp.sum(self.measured**2)
+        costs = jnp.maximum(mm - 2.0 * s * mg + s * s * gg, 0.0) / mm
+        shifts = jnp.arange(n) / (q * self.grid.fps)
+        costs = jnp.where(shifts <= self.grid.max_time_shift + 1e-12, costs, jnp.inf)
+        i = jnp.argmin(costs)
+        return jnp.where(ok, costs[i], jnp.inf), shifts[i] / self.period, s[i]
+
+    def swarm_cost(self, z_phys):
+        """The swarm's cost of a point of the physical parameters (shift and S profiled)."""
+        return self.profile(z_phys)[0]
+
+    def residual(self, y):
+        """Residuals whose sum of squares is the NMSE; y = (z..., log S) or z."""
+        z = y[: len(self.names) + 1]
+        s = self.s_reference * jnp.exp(y[-1]) if self.fit_s else self.s_reference
+        g, ok = self.shape(z)
+        r = self.counted * (s * g - self.measured) / jnp.sqrt(jnp.sum(self.measured**2))
+        # outside the valid range: a large, finite residual (the polish rejects the step)
+        return jnp.where(ok, r, self.counted)
+
+    def start(self, z_phys):
+        """Swarm point (physical parameters) -> polish point (with its best grid shift and,
+        if fitted, log(S / S_ref) of the projected S) and its cost."""
+        cost, shift, s = self.profile(z_phys)
+        y = jnp.concatenate([z_phys, shift[None]])
+        if self.fit_s:
+            y = jnp.concatenate([y, jnp.log(s / self.s_reference)[None]])
+        return y, cost
+
+    def unpack(self, y) -> tuple[VocalFoldModel, float]:
+        """The fitted model and time shift (s) at the point ``y`` (one fit, concrete)."""
+        z = y[: len(self.names) + 1]
+        return self.model_at(z, y[-1] if self.fit_s else None), float(self.shift(z))
+
+
+def program_size(sampling: Sampling) -> tuple[int, int, int]:
+    """The static sizes of a fit's program for ``sampling``: (frames, dense rows, shifts)."""
+    n_out, n_rows = window_size(sampling)
+    shifts = _SHIFTS_PER_FRAME * length_bucket(sampling.shift_frames + 1) + 1
+    return n_out, n_rows, shifts
+
+
+def _is_linear(model, name, ref):
+    ranged = search_range(model, name) is not None
+    return ranged and (ref == 0.0 or name not in ("t_c", "C_min")) or ref == 0.0
+
+
+def _bounds(names, model, bounds):
+    params = model.params()
+    lo, hi = [], []
+    for n in names:
+        ref = float(params[n])
+        if _is_linear(model, n, ref):
+            a, b, scale = search_range(model, n) or (0.0, 1.0, 0.1)
+            # a warm start may sit outside a term's default range (a phase past pi after a
+            # polish): the default range then widens to include it; a user's bounds do not
+            a, b = min(a, ref), max(b, ref)
+            if bounds and n in bounds:
+                a, b = bounds[n]
+            if not (a <= ref <= b and a < b):
+                raise ValueError(
+                    f"bounds for {n} must satisfy low <= start ({ref}) <= high, got {(a, b)}"
+                )
+            lo.append((a - ref) / scale)
+            hi.append((b - ref) / scale)
+        elif bounds and n in bounds:
+            a, b = bounds[n]
+            if not (0 < a < ref < b):
+                raise ValueError(
+                    f"bounds for {n} must satisfy 0 < low < start ({ref}) < high, got {bounds[n]}"
+                )
+            lo.append(math.log(a / ref))
+            hi.append(math.log(b / ref))
+        else:
+            fa, fb = DEFAULT_FACTORS.get(n, (0.2, 5.0))
+            lo.append(math.log(fa))
+            hi.append(math.log(fb))
+    return np.array(lo), np.array(hi)
+
+
+def bounds_in_units(problem: Problem, lower, upper) -> dict:
+    """The search box {name: [low, high]} in the parameters' units (S included if fitted),
+    of one unbatched problem."""
+    out = {}
+    for i, (n, a, b) in enumerate(zip(problem.names, np.asarray(lower), np.asarray(upper))):
+        ref, scale = float(problem.reference[i]), float(problem.scale[i])
+        if problem.linear[i]:
+            out[n] = [ref + scale * float(a), ref + scale * float(b)]
+        else:
+            out[n] = [ref * math.exp(float(a)), ref * math.exp(float(b))]
+    if problem.fit_s:
+        out["S"] = [float(v) for v in np.asarray(problem.s_bounds)]
+    return out
+
+
+def fit_sampling(recording: Recording, warmup: float, substeps: int) -> tuple[Sampling, float]:
+    """The `Sampling` of a fit of ``recording`` and the recording's cycle length T0 (s)."""
+    f0 = fundamental_frequency(recording.area, recording.fps)
+    if not np.isfinite(f0):
+        raise ValueError(
+            f"{recording.name}: fewer than two glottal cycles found in {recording.n_frames} "
+            "frames; a fit needs at least one full cycle"
+        )
+    period = 1.0 / f0
+    sampling = Sampling(
+        recording.fps,
+        recording.n_frames,
+        substeps=substeps,
+        warmup=warmup,
+        max_time_shift=SHIFT_CYCLES * period,
+    )
+    return sampling, period
+
+
+def prepare(model, recording, params, sampling, period, bounds, held=(), size=None):
+    """A `Problem` for fitting ``params`` of ``model`` to ``recording`` and its search box
+    (lower, upper) in the search coordinates. ``size``: the program's static sizes
+    (`program_size`; default: those of ``sampling``)."""
+    if not isinstance(recording, Recording):
+        raise TypeError(f"recording must be a vfjax.Recording, got {type(recording).__name__}")
+    params = tuple(params)
+    units = model.parameter_units()
+    unknown = [n for n in params if n not in units]
+    if unknown:
+        raise ValueError(f"cannot fit {unknown}: the model's parameters are {sorted(units)}")
+    if len(set(params)) != len(params) or not params:
+        raise ValueError(f"params must be distinct parameter names, got {params}")
+    if float(np.sum(recording.area**2)) == 0.0:
+        raise ValueError("the recording's area is zero everywhere: there is nothing to fit")
+    fit_s = "S" in params
+    if recording.unit != "px":
+        if fit_s:
+            raise ValueError(
+                f"S converts model mm² to pixels; the recording is in "
+                f"{recording.unit}, so S is fixed and cannot be fitted"
+            )
+        model = model.set(S=_AREA_TO_PX_SCALE[recording.unit])
+    names = tuple(n for n in params if n != "S")
+    held = tuple(held)
+    if any(n not in names for n in held):
+        raise ValueError(
+            f"only fitted parameters other than S can be held, got {held} for params {params}"
+        )
+    lo, hi = _bounds(names, model, bounds)
+    free = np.array([n not in held for n in names], dtype=float)
+    lo, hi = lo * free, hi * free  # a held parameter's search interval is [0, 0]
+    s_ref = float(model.params()["S"])
+    if fit_s:
+        s_lo, s_hi = _bounds(("S",), model, bounds)
+        s_bounds = np.exp(np.r_[s_lo, s_hi]) * s_ref
+    else:
+        s_bounds = np.array([0.0, np.inf])
+    n_out, n_rows, n_shifts = size or program_size(sampling)
+    measured = np.zeros(n_out)
+    measured[: recording.n_frames] = recording.area
+    problem = Problem(
+        model=model,
+        grid=sampled_grid(sampling),
+        measured=jnp.asarray(measured),
+        counted=jnp.asarray(np.arange(n_out) < recording.n_frames, dtype=float),
+        reference=jnp.asarray([float(model.params()[n]) for n in names]),
+        scale=jnp.asarray([(search_range(model, n) or (0.0, 1.0, 0.1))[2] for n in names]),
+        floor=jnp.asarray(
+            [0.0 if (search_range(model, n) or (-1.0,))[0] >= 0 else -np.inf for n in names]
+        ),
+        free=jnp.asarray(free),
+        s_reference=jnp.asarray(s_ref),
+        period=jnp.asarray(period),
+        s_bounds=jnp.asarray(s_bounds),
+        names=names,
+        linear=tuple(_is_linear(model, n, float(model.params()[n])) for n in names),
+        fit_s=fit_s,
+        n_out=n_out,
+        n_rows=n_rows,
+        n_shifts=n_shifts,
+    )
+    return problem, jnp.asarray(lo), jnp.asarray(hi)
