@@ -285,7 +285,9 @@ def _saved_fit(tmp_path):
         trace_times=[0.0, 1.0],
         n_simulations=10,
         optimistix_result="successful",
-        settings={"params": ["K"], "warmup": 0.02, "max_time_shift": 0.01, "substeps": 4},
+        sampling=vfjax.Sampling(FPS, 201, warmup=0.02, max_time_shift=0.01),
+        bounds={"K": [1e5, 1e6]},
+        swarm=vfjax.Swarm(),
         model=model,
         recording_name="r",
     )
@@ -469,7 +471,13 @@ def test_integer_parameter_leaves_are_refused():
 # -------------------------------------------------------------------------------- fits
 def test_a_fit_that_explains_nothing_is_reported_failed(tmp_path):
     rec = vfjax.Recording(area=_gaw() * 1e10 + 1.0, fps=FPS, name="huge")
-    result = vfjax.fit(vfjax.preset("N3"), rec, params=("S", "K"), iterations=5, lm_steps=5)
+    result = vfjax.fit(
+        vfjax.preset("N3"),
+        rec,
+        params=("S", "K"),
+        swarm=vfjax.Swarm(iterations=5),
+        polish=vfjax.Polish(max_steps=5),
+    )
     assert result.status == "worse_than_mean" and result.failed
     of_mean = np.sum((rec.area - rec.area.mean()) ** 2) / np.sum(rec.area**2)
     assert result.nmse_of_mean == pytest.approx(of_mean)
@@ -490,8 +498,8 @@ def test_a_fit_that_ends_at_its_box_edge_is_reported_failed():
         rec,
         params=("S", "K"),
         bounds={"K": (1.05 * k, 1.3 * k)},
-        iterations=5,
-        polish=False,
+        swarm=vfjax.Swarm(iterations=5),
+        polish=None,
     )
     assert result.status == "at_bound" and result.failed
     assert result.params["K"] / k == pytest.approx(1.05, rel=1e-3)

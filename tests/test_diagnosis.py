@@ -23,6 +23,7 @@ from vfjax import (
     GlottalGap,
     MucosalDelay,
     PressureModulation,
+    search_range,
 )
 from vfjax.datasets import demo_recording
 from vfjax.diagnosis import (
@@ -36,7 +37,6 @@ from vfjax.diagnosis import (
     default_candidates,
     effective_frames,
 )
-from vfjax.fit import search_range
 
 
 # ------------------------------------------------------------------------------ the pieces
@@ -66,13 +66,13 @@ def test_a_term_without_off_values_is_refused():
 def test_gap_sensitivity_is_the_camera_scale(shared_dir):
     """d(observed px)/d(a_gap) = 100 S px per cm² wherever the GAW is open: analytic."""
     rec = demo_recording("N3", noise_px=0.0)
-    result = vfjax.fit(vfjax.preset("N3"), rec, params=("S",), iterations=0, progress=False)
+    result = vfjax.fit(
+        vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
+    )
     model = result.model.with_term(GlottalGap())
     shift = jnp.asarray(result.time_shift)
-    cols = _effect_columns(
-        _sampler(result, rec), _stack([model]), ("a_gap",), jnp.zeros((1, 1)), shift
-    )
-    cols = np.asarray(cols)[0, :, 0]
+    cols = _effect_columns(_sampler(result), _stack([model]), ("a_gap",), jnp.zeros((1, 1)), shift)
+    cols = np.asarray(cols)[0, : rec.n_frames, 0]
     open_ = result.fitted_gaw(rec) > 0
     assert np.allclose(cols[open_], 100.0 * result.params["S"], rtol=1e-12)
 
@@ -81,9 +81,11 @@ def test_candidates_sensitivities_from_one_extended_model():
     """All candidates' columns come from one model extended by all of them (each at its
     score point, the others off): the same as from the model extended by each alone."""
     rec = demo_recording("N3", noise_px=0.0)
-    result = vfjax.fit(vfjax.preset("N3"), rec, params=("S",), iterations=0, progress=False)
+    result = vfjax.fit(
+        vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
+    )
     cands = [Candidate.of(k) for k in (GlottalGap, PressureModulation, MucosalDelay)]
-    sampler = _sampler(result, rec)
+    sampler = _sampler(result)
     together = _candidate_columns(result, sampler, cands)
     assert [c.shape for c in together] == [(1, 201, 1), (38, 201, 1), (1, 201, 1)]
     for cand, cols in list(zip(cands, together))[1:]:
@@ -146,7 +148,9 @@ def test_confirming_swarm_grows_with_the_candidates_parameters():
 
 def test_bad_arguments_are_refused(shared_dir):
     rec = demo_recording("N3", noise_px=0.0)
-    result = vfjax.fit(vfjax.preset("N3"), rec, params=("S",), iterations=0, progress=False)
+    result = vfjax.fit(
+        vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
+    )
     with pytest.raises(ValueError, match="alpha"):
         vfjax.diagnose(result, rec, alpha=0.0)
     with pytest.raises(ValueError, match="confirm"):
@@ -275,7 +279,11 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
     `diagnosis.extend` adds the gap and recovers it."""
     rec = demo_recording("N3", noise_px=1.0, effect=GlottalGap(a_gap=0.008))
     result = vfjax.fit(
-        vfjax.preset("N3"), rec, params=("S", "K", "C_f"), iterations=20, progress=False
+        vfjax.preset("N3"),
+        rec,
+        params=("S", "K", "C_f"),
+        swarm=vfjax.Swarm(iterations=20),
+        progress=False,
     )
     d = vfjax.diagnose(result, rec, refit=False)
     assert d.refits == {} and d.control is None
@@ -287,7 +295,7 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
     assert (tmp_path / f"{rec.name}_rounds.png").stat().st_size > 1000
     assert (tmp_path / f"{rec.name}_round1_compare.png").exists()
     # the plain API: add the effect to the fitted model and refit from the current fit
-    extended = vfjax.diagnosis.extend(result, rec, GlottalGap(), iterations=20)
+    extended = vfjax.diagnosis.extend(result, rec, GlottalGap(), swarm=vfjax.Swarm(iterations=20))
     assert extended.model.has(GlottalGap)
     assert extended.nmse < 0.5 * result.nmse
     assert extended.params["a_gap"] == pytest.approx(0.008, rel=0.2)

@@ -95,12 +95,11 @@ def test_a_modulation_needs_a_longer_warmup():
         truth,
         rec,
         params=("S", "a_pm"),
-        iterations=2,
-        swarm_size=4,
+        swarm=vfjax.Swarm(size=4, iterations=2),
         bounds={"a_pm": (0.0599, 0.0601)},
         progress=False,
     )
-    assert fit.settings["warmup"] == 0.1
+    assert fit.sampling.warmup == 0.1
     noise = rec.n_frames * 2.0**2 / float(np.sum(rec.area**2))
     assert fit.nmse < 2.0 * noise
 

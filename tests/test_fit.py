@@ -232,9 +232,9 @@ def _compilations():
     """A counter of XLA compilations, from JAX's monitoring events."""
     seen = []
     jax.monitoring.register_event_duration_secs_listener(
-        lambda event, duration, **kw: seen.append(event)
-        if event == "/jax/core/compile/backend_compile_duration"
-        else None
+        lambda event, duration, **kw: (
+            seen.append(event) if event == "/jax/core/compile/backend_compile_duration" else None
+        )
     )
     return seen
 

@@ -761,8 +761,9 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
 
     The motion up to the window (`LOOKBACK` before the first frame) runs in a loop that keeps
     no rows and whose length is data; the window's motion is kept in ``n_rows`` rows, so
-    ``Simulation.dense`` covers the window only. Padding frames (beyond ``grid.n_frames``)
-    have zero area. Forward-mode derivatives only (`jax.jvp`, `jax.jacfwd`).
+    ``Simulation.dense`` covers the window only. ``time_shift`` (s) may lie in [-LOOKBACK / 2,
+    ``grid.max_time_shift``]. Padding frames (beyond ``grid.n_frames``) have zero area.
+    Forward-mode derivatives only (`jax.jvp`, `jax.jacfwd`).
     """
     x0 = model.contact_displacement
     xc = model.subcritical_displacement()
@@ -803,7 +804,8 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
     x = dense.displacement(times)
     valid = ((times <= end.t + 1e-12) | ~counted) & valid_model
     area = jnp.where(counted, model.observe(times, x, dense.displacement), 0.0)
-    shift_ok = (time_shift >= -1e-12) & (time_shift <= grid.max_time_shift + 1e-12)
+    # a polish may move the frames a little before the warm-up's end (half the lookback)
+    shift_ok = (time_shift >= -0.5 * LOOKBACK) & (time_shift <= grid.max_time_shift + 1e-12)
     diverged = end.flag(_DIVERGED)
     reached = (end.step >= grid.n_steps) & jnp.all(valid) & warmed
     result = RESULTS.where(

@@ -3,7 +3,8 @@
 Protocol (the paper gives none). A recording starts at an arbitrary point of the glottal
 cycle, while the model starts from rest at contact. vfjax simulates a warm-up to reach the
 limit cycle (`default_warmup`) and samples the recording's frames from ``warmup +
-time_shift``, where the time shift is a fitted, differentiable parameter in [0, 1.25 T0].
+time_shift``, where the time shift is a fitted, differentiable parameter in [0, 1.25 T0]
+(rounded up to 5 ms: `SHIFT_CYCLES`, `SHIFT_STEP`).
 
 - ``_problem``: the problem of one fit and its search coordinates;
 - ``_swarm``: the particle swarm;

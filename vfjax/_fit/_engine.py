@@ -62,8 +62,8 @@ def _polish_start(batch, positions):
 
 
 @eqx.filter_jit
-def _polish_batch(batch, y0, polish: Polish):
-    return jax.vmap(lambda p, y: _polish_one(p, y, polish))(batch, y0)
+def _polish_batch(batch, y0, cost0, polish: Polish):
+    return jax.vmap(lambda p, y, c: _polish_one(p, y, c, polish))(batch, y0, cost0)
 
 
 def _result_name(result, index) -> str:
@@ -218,14 +218,14 @@ def fit_many(
     # Stage 2: the polish, one compiled solve for the whole batch.
     t1 = time.perf_counter()
     y0, c0 = _polish_start(batch, states.global_position)
-    c0 = np.asarray(c0)
     if polish is not None:
-        y, cost, steps, codes = _polish_batch(batch, y0, polish)
+        y, cost, steps, codes = _polish_batch(batch, y0, c0, polish)
         y, cost, steps = np.asarray(y), np.asarray(cost), np.asarray(steps)
         names = [_result_name(codes, i) for i in range(len(problems))]
     else:
         y, cost, steps = np.asarray(y0), c0, np.zeros(len(problems), int)
         names = ["not run"] * len(problems)
+    c0 = np.asarray(c0)
     t_lm = time.perf_counter() - t1
     if bar is not None:
         bar.update(1 if polish else 0)
@@ -252,7 +252,7 @@ def fit_many(
         floors = dict(zip(problem.names, np.asarray(problem.floor)))
         status, of_mean = fit_status(rec.area, float(cost[i]), values, box, floors)
         units = fitted.parameter_units()
-        n_sims = swarm.size * (1 + swarm.iterations) + int(steps[i]) * (1 + y.shape[1]) + 3
+        n_sims = swarm.size * (1 + swarm.iterations) + int(steps[i]) * (1 + y.shape[1]) + 1
         results.append(
             FitResult(
                 params={n: float(values[n]) for n in fitted_names},

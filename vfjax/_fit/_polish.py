@@ -29,26 +29,25 @@ def _residual_jvp(primals, tangents):
     return r, jac @ dy
 
 
-def cost(problem: Problem, y):
-    """The NMSE at ``y``."""
-    return jnp.sum(problem.residual(y) ** 2)
+def _with_cost(y, problem: Problem):
+    r = residual(y, problem)
+    return r, jnp.sum(jax.lax.stop_gradient(r) ** 2)
 
 
-def polish(problem: Problem, y0, options: Polish):
-    """The best point the solver finds from ``y0``, its NMSE, the steps taken and the
-    solver's result code (one problem; the engine vmaps it over a batch)."""
-    solver = optx.BestSoFarLeastSquares(options.solver)
+def polish(problem: Problem, y0, cost0, options: Polish):
+    """The best point the solver finds from ``y0`` (whose NMSE is ``cost0``), its NMSE, the
+    steps taken and the solver's result code (one problem; the engine vmaps it)."""
     sol = optx.least_squares(
-        residual,
-        solver,
+        _with_cost,
+        optx.BestSoFarLeastSquares(options.solver),
         y0,
         args=problem,
         options={"jac": "fwd"},
+        has_aux=True,
         max_steps=options.max_steps,
         throw=False,
     )
-    y = sol.value
-    c0, c = cost(problem, y0), cost(problem, y)
-    # the best-so-far wrapper returns the best point it saw, y0 included
-    better = jnp.isfinite(c) & (c <= c0)
-    return jnp.where(better, y, y0), jnp.where(better, c, c0), sol.stats["num_steps"], sol.result
+    # the best point seen (the start included), with its NMSE as the auxiliary output
+    better = jnp.isfinite(sol.aux) & (sol.aux <= cost0)
+    y = jnp.where(better, sol.value, y0)
+    return y, jnp.where(better, sol.aux, cost0), sol.stats["num_steps"], sol.result

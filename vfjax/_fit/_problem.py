@@ -51,8 +51,11 @@ LINEAR = {
 
 #: Simulated time before the first frame (s) of a fit whose terms need no more.
 WARMUP = 0.02
-#: The largest time shift of a fit, in cycles of the recording's f0.
+#: The largest time shift of a fit: this many cycles of the recording's f0, rounded up to a
+#: multiple of `SHIFT_STEP` (a recording made with a slow modulation or drift is not periodic,
+#: so a shift beyond one cycle can still fit better).
 SHIFT_CYCLES = 1.25
+SHIFT_STEP = 0.005
 _SHIFTS_PER_FRAME = 2  # the swarm tries time shifts half a frame apart
 _AREA_TO_PX_SCALE = {"mm2": 1.0, "cm2": 0.01}  # S that turns model mm² per mm² into the unit
 
@@ -268,7 +271,7 @@ def fit_sampling(recording: Recording, warmup: float, substeps: int) -> tuple[Sa
         recording.n_frames,
         substeps=substeps,
         warmup=warmup,
-        max_time_shift=SHIFT_CYCLES * period,
+        max_time_shift=math.ceil(SHIFT_CYCLES * period / SHIFT_STEP - 1e-9) * SHIFT_STEP,
     )
     return sampling, period
 

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._sampling import Sampling
-from ..integrator import Simulation, sampled_grid, simulate, simulate_frames, window_size
+from ..integrator import Simulation, sampled_grid, simulate_frames, window_size
 from ..io import write_json
 from ..model import VocalFoldModel
 from ..recording import Recording
@@ -22,16 +22,27 @@ _EDGE = 1e-3  # a value within this fraction of its box's width from an edge is 
 
 @eqx.filter_jit
 def _frames(model, grid, shift, n_out, n_rows):
-    return simulate_frames(model, grid, shift, n_out=n_out, n_rows=n_rows).area
+    return simulate_frames(model, grid, shift, n_out=n_out, n_rows=n_rows)
+
+
+def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift: float) -> Simulation:
+    """The `Simulation` of ``model`` sampled as a fit samples it (``sampling``, frames shifted
+    by ``time_shift`` s); its dense output covers the frames and a short lookback before
+    them. One compiled program per model structure and length bucket
+    (`vfjax.integrator.window_size`), whatever the frame rate and warm-up."""
+    n_out, n_rows = window_size(sampling)
+    sim = _frames(model, sampled_grid(sampling), jnp.asarray(float(time_shift)), n_out, n_rows)
+    n = sampling.n_frames
+    per_frame = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
+    return eqx.tree_at(
+        lambda s: [getattr(s, f) for f in per_frame], sim, [getattr(sim, f)[:n] for f in per_frame]
+    )
 
 
 def fitted_area(model: VocalFoldModel, sampling: Sampling, time_shift: float) -> np.ndarray:
-    """The GAW of ``model`` sampled as a fit samples it (``sampling``, shifted by
-    ``time_shift`` s), clipped at zero: the waveform whose error a fit reports. One compiled
-    program per model structure and length bucket (`vfjax.integrator.window_size`)."""
-    n_out, n_rows = window_size(sampling)
-    area = _frames(model, sampled_grid(sampling), jnp.asarray(float(time_shift)), n_out, n_rows)
-    return np.clip(np.asarray(area[: sampling.n_frames]), 0.0, None)
+    """The GAW of ``model`` sampled as a fit samples it, clipped at zero: the waveform whose
+    error a fit reports (`fitted_simulation`)."""
+    return np.clip(np.asarray(fitted_simulation(model, sampling, time_shift).area), 0.0, None)
 
 
 @dataclasses.dataclass
@@ -116,19 +127,10 @@ class FitResult:
         return self.status
 
     def simulate(self, recording: Recording | None = None) -> Simulation:
-        """The fitted model's `Simulation` on the fit's frames (motion, phases, dense
-        output; `vfjax.simulate`). ``recording`` is accepted for symmetry and not needed."""
-        s = self.sampling
-        return simulate(
-            self.model,
-            s.fps,
-            s.n_frames,
-            substeps=s.substeps,
-            t_start=s.warmup,
-            time_shift=self.time_shift,
-            max_time_shift=s.max_time_shift,
-            throw=False,
-        )
+        """The fitted model's `Simulation` on the fit's frames (motion, phases, and the dense
+        output over the frames; `fitted_simulation`). ``recording`` is accepted for symmetry
+        and not needed."""
+        return fitted_simulation(self.model, self.sampling, self.time_shift)
 
     def fitted_gaw(self, recording: Recording | None = None) -> np.ndarray:
         """The fitted GAW on the fit's frames, clipped at zero, in the recording's unit: the
