@@ -1,7 +1,7 @@
 """Models and fit results to and from plain JSON-ready dicts, without loss.
 
 A saved file is data, never code. Reading one validates it against its schema
-(``vfjax/schemas/fit_result.schema.json``) before anything is built, and resolves each term's
+(``data_schema/fit_result.schema.json``) before anything is built, and resolves each term's
 class name only among vfjax's own terms (`BUILTIN_TERMS`) and the classes the caller passes
 on purpose (``terms=``): nothing is imported, and no other class is called.
 """
@@ -133,7 +133,7 @@ def model_from_dict(d: dict, terms=(), where: str = "model") -> VocalFoldModel:
 
 
 def fit_result_to_dict(result) -> dict:
-    """A `FitResult` as a JSON-ready dict (schema: vfjax/schemas/fit_result.schema.json)."""
+    """A `FitResult` as a JSON-ready dict (schema: data_schema/fit_result.schema.json)."""
     out = {f.name: getattr(result, f.name) for f in dataclasses.fields(result)}
     out["model"] = None if result.model is None else model_to_dict(result.model)
     out["sampling"] = result.sampling.to_dict()
@@ -143,7 +143,7 @@ def fit_result_to_dict(result) -> dict:
 
 
 def validate_fit_result(d, where: str = "fit result") -> None:
-    """Check a saved fit result against ``vfjax/schemas/fit_result.schema.json``; the error
+    """Check a saved fit result against ``data_schema/fit_result.schema.json``; the error
     names the field and what is wrong with it."""
     check_schema(d, "fit_result.schema.json", where, "not a vfjax fit result")
 

@@ -138,7 +138,7 @@ class FitResult:
         return fitted_area(self.model, self.sampling, self.time_shift)
 
     def to_json(self, path) -> None:
-        """Save as JSON (schema: ``vfjax/schemas/fit_result.schema.json``)."""
+        """Save as JSON (schema: ``data_schema/fit_result.schema.json``)."""
         write_json(path, fit_result_to_dict(self))
 
     @classmethod
