@@ -624,12 +624,21 @@ def _simulate(
     max_time_shift,
     reverse_mode,
 ) -> Simulation:
-    x0 = model.contact_displacement
-    xc = model.subcritical_displacement()
-    x_init = x0 if x_init is None else x_init
+    x_init = model.contact_displacement if x_init is None else x_init
     x_init = jnp.asarray(x_init, dtype=float)
     valid_model = model.is_valid() & jnp.isfinite(x_init) & jnp.isfinite(v_init)
-    start = _Carry(
+    start = _start(model, x_init, v_init)
+    integrate = _integrate if reverse_mode else _integrate_loop
+    end, rows = integrate(model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=t_start)
+    shift_ok = (time_shift >= -t_start - 1e-12) & (time_shift <= max_time_shift + 1e-12)
+    times = t_start + time_shift + jnp.arange(n_frames) / fps
+    return _sampled(model, start, end, rows, times, n_steps, valid_model, shift_ok)
+
+
+def _start(model, x_init, v_init) -> _Carry:
+    """The carry at time 0: the folds at ``x_init`` (cm) moving at ``v_init`` (cm/s)."""
+    x0, xc = model.contact_displacement, model.subcritical_displacement()
+    return _Carry(
         t=jnp.zeros((), float),
         x=x_init,
         v=v_init,
@@ -638,24 +647,31 @@ def _simulate(
         flags=_pack(x_init > x0, x_init <= xc, v_init < 0, False),
         events=jnp.zeros((), jnp.int32),
     )
-    integrate = _integrate if reverse_mode else _integrate_loop
-    end, (ts, xs, vs, codes) = integrate(
-        model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=t_start
-    )
 
+
+def _sampled(
+    model, begin, end, rows, times, n_steps, valid_model, shift_ok, counted=None, warmed=True
+) -> Simulation:
+    """The `Simulation` of an integration from the carry ``begin`` to ``end`` with dense
+    ``rows`` (t, x, v, phase code), read at the frame ``times``. ``counted``: which frames
+    count (the others are padding, of zero area); ``warmed``: whether the motion before the
+    rows ran to its end."""
+    ts, xs, vs, codes = rows
     dense = DenseOutput(
-        t=jnp.concatenate([start.t[None], ts]),
-        x=jnp.concatenate([start.x[None], xs]),
-        v=jnp.concatenate([start.v[None], vs]),
+        t=jnp.concatenate([begin.t[None], ts]),
+        x=jnp.concatenate([begin.x[None], xs]),
+        v=jnp.concatenate([begin.v[None], vs]),
         phase=jnp.concatenate([codes, codes[-1:]]),
     )
-    shift_ok = (time_shift >= -t_start - 1e-12) & (time_shift <= max_time_shift + 1e-12)
-    times = t_start + time_shift + jnp.arange(n_frames) / fps
     x = dense.displacement(times)
-    valid = (times <= end.t + 1e-12) & valid_model
+    valid = times <= end.t + 1e-12
     area = model.observe(times, x, dense.displacement)
+    if counted is not None:
+        valid = valid | ~counted
+        area = jnp.where(counted, area, 0.0)
+    valid = valid & valid_model
     diverged = end.flag(_DIVERGED)
-    reached = (end.step >= n_steps) & jnp.all(valid)
+    reached = (end.step >= n_steps) & jnp.all(valid) & warmed
     result = RESULTS.where(
         ~valid_model,
         RESULTS.invalid_parameters,
@@ -765,18 +781,7 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
     ``grid.max_time_shift``]. Padding frames (beyond ``grid.n_frames``) have zero area.
     Forward-mode derivatives only (`jax.jvp`, `jax.jacfwd`).
     """
-    x0 = model.contact_displacement
-    xc = model.subcritical_displacement()
-    valid_model = model.is_valid()
-    start = _Carry(
-        t=jnp.zeros((), float),
-        x=jnp.asarray(x0, dtype=float),
-        v=jnp.zeros((), float),
-        hold_left=jnp.zeros((), float),
-        step=jnp.zeros((), jnp.int32),
-        flags=_pack(False, x0 <= xc, False, False),
-        events=jnp.zeros((), jnp.int32),
-    )
+    start = _start(model, jnp.asarray(model.contact_displacement, float), jnp.zeros((), float))
     warm = _iteration(model, grid.h, grid.window_step, grid.t_start)
 
     def warm_trip(state):
@@ -790,48 +795,22 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
 
     _, begin = jax.lax.while_loop(warming, warm_trip, (jnp.zeros((), jnp.int32), start))
     warmed = ~begin.active(grid.window_step) | begin.flag(_DIVERGED)
-    end, (ts, xs, vs, codes) = _integrate_loop(
+    end, rows = _integrate_loop(
         model, begin, h=grid.h, n_steps=grid.n_steps, n_iter=n_rows, origin=grid.t_start
-    )
-    dense = DenseOutput(
-        t=jnp.concatenate([begin.t[None], ts]),
-        x=jnp.concatenate([begin.x[None], xs]),
-        v=jnp.concatenate([begin.v[None], vs]),
-        phase=jnp.concatenate([codes, codes[-1:]]),
     )
     counted = jnp.arange(n_out) < grid.n_frames
     times = grid.t_start + time_shift + jnp.arange(n_out) / grid.fps
-    x = dense.displacement(times)
-    valid = ((times <= end.t + 1e-12) | ~counted) & valid_model
-    area = jnp.where(counted, model.observe(times, x, dense.displacement), 0.0)
     # a polish may move the frames a little before the warm-up's end (half the lookback)
     shift_ok = (time_shift >= -0.5 * LOOKBACK) & (time_shift <= grid.max_time_shift + 1e-12)
-    diverged = end.flag(_DIVERGED)
-    reached = (end.step >= grid.n_steps) & jnp.all(valid) & warmed
-    result = RESULTS.where(
-        ~valid_model,
-        RESULTS.invalid_parameters,
-        RESULTS.where(
-            ~shift_ok,
-            RESULTS.time_shift_out_of_range,
-            RESULTS.where(
-                diverged,
-                RESULTS.diverged,
-                RESULTS.where(reached, RESULTS.successful, RESULTS.event_budget_exhausted),
-            ),
-        ),
-    )
-    nan = jnp.nan
-    return Simulation(
-        time=times,
-        area=jnp.where(valid, area, nan),
-        glottal_area=jnp.where(valid, model.subject.area(x), nan),
-        displacement=jnp.where(valid, x, nan),
-        velocity=jnp.where(valid, dense.velocity(times), nan),
-        phase=dense.phase_at(times),
-        diverged=diverged,
-        complete=result == RESULTS.successful,
-        n_events=end.events,
-        result=result,
-        dense=dense,
+    return _sampled(
+        model,
+        begin,
+        end,
+        rows,
+        times,
+        grid.n_steps,
+        model.is_valid(),
+        shift_ok,
+        counted,
+        warmed,
     )

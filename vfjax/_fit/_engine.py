@@ -22,6 +22,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
 from .._sampling import DEFAULT_SUBSTEPS
 from ..model import VocalFoldModel
@@ -68,8 +69,6 @@ def _polish_batch(batch, y0, cost0, polish: Polish):
 
 def _result_name(result, index) -> str:
     """optimistix's result code of member ``index`` as a plain string."""
-    import optimistix as optx
-
     for name in ("successful", "max_steps_reached", "nonlinear_divergence", "singular"):
         member = getattr(optx.RESULTS, name, None)
         if member is not None and bool(np.asarray(result == member)[index]):

@@ -280,8 +280,6 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
     """A `Problem` for fitting ``params`` of ``model`` to ``recording`` and its search box
     (lower, upper) in the search coordinates. ``size``: the program's static sizes
     (`program_size`; default: those of ``sampling``)."""
-    if not isinstance(recording, Recording):
-        raise TypeError(f"recording must be a vfjax.Recording, got {type(recording).__name__}")
     params = tuple(params)
     units = model.parameter_units()
     unknown = [n for n in params if n not in units]
