@@ -83,6 +83,33 @@ def test_loss_gradient_matches_central_differences(name):
         assert err < JAC_TOL, f"{name}: d loss / d {param} off by {100 * err:.2g} %"
 
 
+
+def test_derivatives_exact_where_the_folds_leave_a_hold_at_rest():
+    """A hold releases the folds at rest just inside contact (v = 0, 1e-7 cm deep): the step
+    after it leaves the surface quadratically, the hardest case for the event root. A
+    fitted N4-based model of a demo recording (K and C_f as a fit left them) releases so
+    in every cycle; forward mode must still equal converged central differences (an
+    unconverged root left d GAW / d C_f 7 % off here)."""
+    model = vfjax.preset("N4").set(K=829019.2, C_f=453.989, t_c=0.00295461, S=1.0)
+    params = model.params()
+
+    def gaw(rel):
+        changed = model.set(K=params["K"] * (1 + rel[0]), C_f=params["C_f"] * (1 + rel[1]))
+        return vfjax.simulate(
+            changed, FPS, N_FRAMES, t_start=0.02, time_shift=0.007625, max_time_shift=0.01
+        ).area
+
+    zero = jnp.zeros(2)
+    jac = np.asarray(jax.jit(jax.jacfwd(gaw))(zero))
+    run = jax.jit(gaw)
+    for i, param in enumerate(("K", "C_f")):
+        step = FD_STEP * np.eye(2)[i]
+        fd = (np.asarray(run(step)) - np.asarray(run(-step))) / (2 * FD_STEP)
+        err = np.linalg.norm(jac[:, i] - fd) / np.linalg.norm(fd)
+        assert err < JAC_TOL, f"d GAW / d {param} off by {100 * err:.2g} %"
+    closed = vfjax.simulate(model, FPS, N_FRAMES, t_start=0.02).phase == vfjax.phases.CLOSED
+    assert int(jnp.sum(closed)) > 20, "the case must close (and so release from holds)"
+
 def test_n1_sits_within_a_tenth_of_a_percent_of_the_closing_boundary():
     """Why finite differences need steps far below 0.1 %: N1 closes (132 closed frames) and
     with C_f 0.1 % higher never does. Across that boundary the GAW (and a loss) jumps, so a
