@@ -83,7 +83,6 @@ def test_loss_gradient_matches_central_differences(name):
         assert err < JAC_TOL, f"{name}: d loss / d {param} off by {100 * err:.2g} %"
 
 
-
 def test_derivatives_exact_where_the_folds_leave_a_hold_at_rest():
     """A hold releases the folds at rest just inside contact (v = 0, 1e-7 cm deep): the step
     after it leaves the surface quadratically, the hardest case for the event root. A
@@ -109,6 +108,7 @@ def test_derivatives_exact_where_the_folds_leave_a_hold_at_rest():
         assert err < JAC_TOL, f"d GAW / d {param} off by {100 * err:.2g} %"
     closed = vfjax.simulate(model, FPS, N_FRAMES, t_start=0.02).phase == vfjax.phases.CLOSED
     assert int(jnp.sum(closed)) > 20, "the case must close (and so release from holds)"
+
 
 def test_n1_sits_within_a_tenth_of_a_percent_of_the_closing_boundary():
     """Why finite differences need steps far below 0.1 %: N1 closes (132 closed frames) and

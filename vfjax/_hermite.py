@@ -37,30 +37,7 @@ def _poly_slope(c, theta):
     return c[1] + theta * (2.0 * c[2] + theta * 3.0 * c[3])
 
 
-def _quadratic_guess(g0, slope0, g1):
-    """The root in [0, 1] of the quadratic with value ``g0`` and slope ``slope0`` at 0 and
-    value ``g1`` at 1 (opposite in sign to ``g0``); the secant root where it has none.
-
-    A step that starts at rest (a closure hold's release: v = 0) leaves the surface
-    quadratically, g ~ g0 + a theta², and its crossing lies near sqrt(-g0 / a), far from
-    the secant root when g0 is small: Newton from there first halves its distance to the
-    root for several iterations. The quadratic puts it within O(theta³) of the root."""
-    secant = jnp.clip(_safe_div(g0, g0 - g1), 0.0, 1.0)
-    a = g1 - g0 - slope0
-    disc = slope0 * slope0 - 4.0 * a * g0
-    ok = disc >= 0
-    s = jnp.sqrt(jnp.where(ok, disc, 0.0))
-    q = -0.5 * (slope0 + jnp.where(slope0 >= 0, s, -s))
-    # the two roots are q / a and g0 / q (cancellation-free); keep the one in [0, 1]
-    first = _safe_div(q, a)
-    second = _safe_div(g0, q)
-    inside = (second >= 0) & (second <= 1) & (q != 0)
-    root = jnp.where(inside, second, first)
-    good = ok & (root >= 0) & (root <= 1) & (jnp.where(inside, q, a) != 0)
-    return jnp.where(good, root, secant)
-
-
-def hermite_root(y0, d0, y1, d1, target, iterations: int = 4):
+def hermite_root(y0, d0, y1, d1, target, iterations: int = 6):
     """Root in [0, 1] of ``hermite(theta) = target``, given a sign change over [0, 1].
 
     Arguments may carry a leading axis to solve several independent problems at once.
@@ -69,16 +46,17 @@ def hermite_root(y0, d0, y1, d1, target, iterations: int = 4):
     theta = 0 is divided out, so a trajectory that moves off the surface and comes back within
     the step yields its return crossing, not a zero-length event at the start.
 
-    Safeguarded Newton (bisection where a step leaves the bracket) from the root of the
-    quadratic through g(0), g'(0) and g(1) runs on stopped gradients; one final Newton step
-    on the live coefficients gives the root the derivative of the implicit function
-    theorem, d(theta)/dp = -(dg/dp) / (dg/dtheta). This is what makes event times
-    differentiable, exactly so only where the stopped iterations have converged: then the
-    derivative is that of the computed root. At a grazing contact (the paper's N1 and N3
-    close with 0.001-0.03 mm² of overlap) and where a hold releases the folds at rest, the
-    cubic is far from linear; from the quadratic's root four iterations bring d GAW / dp at
-    N1-N4 and at a hold release to converged central differences within 1e-6
-    (`tests/test_derivatives.py`). A convergence test (a while loop) costs more than it
+    Safeguarded Newton from the secant guess (its square root for a step that starts at
+    rest) runs on stopped gradients; one final Newton step on the live coefficients gives
+    the root the derivative of the implicit function theorem, d(theta)/dp = -(dg/dp) /
+    (dg/dtheta). This is what makes event times differentiable, exactly so only where the
+    stopped iterations have converged: then the derivative is that of the computed root. On
+    a step of the integrator the cubic is usually close to linear and the secant guess is
+    accurate to O(dt²), but at a grazing contact (the paper's N1 and N3 close with
+    0.001-0.03 mm² of overlap) it is far from linear: four iterations leave d GAW / d C_f at
+    N3 0.9 % off converged central differences, six bring every parameter at N1-N4, and at
+    folds leaving a hold at rest, to 1e-6 (`tests/test_derivatives.py`), for about 10 % of
+    the simulator's time at batch 64. A convergence test (a while loop) costs more than it
     saves: under `vmap` it runs for the slowest member at every step.
     """
     g0 = y0 - target
@@ -90,7 +68,12 @@ def hermite_root(y0, d0, y1, d1, target, iterations: int = 4):
     p_lo, p_hi = p[0], p[0] + p[1] + p[2] + p[3]
     # No sign change of the deflated polynomial: the trajectory leaves at theta = 0.
     immediate = on_surface & (jnp.sign(p_lo) == jnp.sign(p_hi))
-    theta = _quadratic_guess(p_lo, p[1], p_hi)
+    theta = jnp.clip(_safe_div(p_lo, p_lo - p_hi), 0.0, 1.0)
+    # A step that starts at rest (a closure hold's release: v = 0) leaves the surface
+    # quadratically, g ~ g(0) + (g(1) - g(0)) theta², so its crossing lies near the square
+    # root of the secant's; from the secant's own (far too early when g(0) is small) Newton
+    # would first halve its distance to the root for several iterations.
+    theta = jnp.where(p[1] == 0, jnp.sqrt(theta), theta)
 
     def newton(_, state):
         # Newton inside the bracket [lo, hi]; a step that leaves it is replaced by bisection.

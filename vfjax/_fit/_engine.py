@@ -31,7 +31,7 @@ from ._options import Polish, Swarm
 from ._polish import polish as _polish_one
 from ._problem import bounds_in_units, default_warmup, fit_sampling, prepare, program_size
 from ._result import FitResult, fit_status
-from ._swarm import init_swarm, run_chunk
+from ._swarm import at_rest, run_chunk, scatter
 
 #: The parameters a fit adjusts by default: the paper's S, K and C_f.
 DEFAULT_PARAMS = ("S", "K", "C_f")
@@ -40,39 +40,79 @@ DEFAULT_SWARM = Swarm()
 DEFAULT_POLISH = Polish()
 
 
+def _swarm_costs(batch, positions, mesh):
+    """The swarm cost of every particle of every fit, (fits, n, d) -> (fits, n): one
+    vmapped simulation; with a ``mesh`` of several devices, the particles are split among
+    them (each device simulates its share of every fit's swarm)."""
+
+    def costs(b, x):
+        return jax.lax.map(lambda a: jax.vmap(a[0].swarm_cost)(a[1]), (b, x))
+
+    if mesh is None:
+        return costs(batch, positions)
+    part = jax.sharding.PartitionSpec(None, "particles")
+    return jax.shard_map(
+        costs,
+        mesh=mesh,
+        in_specs=(jax.sharding.PartitionSpec(), part),
+        out_specs=part,
+        check_vma=False,
+    )(batch, positions)
+
+
 @eqx.filter_jit
-def _swarm_start(batch, lowers, uppers, keys, swarm: Swarm):
-    def one(p, lo, hi, k):
-        cost = jax.vmap(p.swarm_cost)
-        return init_swarm(cost, lo, hi, swarm.size, k, jnp.zeros(lo.shape))
-
-    return jax.vmap(one)(batch, lowers, uppers, keys)
+def _swarm_start(batch, lowers, uppers, keys, swarm: Swarm, mesh):
+    positions, keys = jax.vmap(lambda lo, hi, k: scatter(lo, hi, swarm.size, k, 0 * lo))(
+        lowers, uppers, keys
+    )
+    return jax.vmap(at_rest)(positions, _swarm_costs(batch, positions, mesh), keys)
 
 
 @eqx.filter_jit
-def _swarm_chunk(batch, lowers, uppers, states, live, swarm: Swarm):
-    def one(p, lo, hi, s):
-        return run_chunk(jax.vmap(p.swarm_cost), lo, hi, swarm, s, live)
+def _swarm_chunk(batch, lowers, uppers, states, live, swarm: Swarm, mesh):
+    def costs(x):
+        return _swarm_costs(batch, x, mesh)
 
-    return jax.vmap(one)(batch, lowers, uppers, states)
+    return run_chunk(costs, lowers, uppers, swarm, states, live)
 
 
+def _particle_mesh(swarm: Swarm):
+    """A mesh of the default backend's devices over which to split each swarm's particles,
+    or None (one device, or particles that do not divide among them)."""
+    devices = jax.devices()
+    if len(devices) < 2 or swarm.size % len(devices):
+        return None
+    return jax.sharding.Mesh(np.array(devices), ("particles",))
+
+
+# The polish runs the fits of a batch one after the other (`lax.map`), not side by side:
+# each fit's solve is already batched over its Jacobian's columns, a vmapped solve would run
+# every fit for as many steps as the slowest one, and each fit then computes exactly what it
+# computes alone (a vmapped batch rounds differently from a batch of one).
 @eqx.filter_jit
 def _polish_start(batch, positions):
-    return jax.vmap(lambda p, z: p.start(z))(batch, positions)
+    return jax.lax.map(lambda a: a[0].start(a[1]), (batch, positions))
 
 
 @eqx.filter_jit
 def _polish_batch(batch, y0, cost0, polish: Polish):
-    return jax.vmap(lambda p, y, c: _polish_one(p, y, c, polish))(batch, y0, cost0)
+    return jax.lax.map(lambda a: _polish_one(*a, polish), (batch, y0, cost0))
 
 
 def _result_name(result, index) -> str:
     """optimistix's result code of member ``index`` as a plain string."""
-    for name in ("successful", "max_steps_reached", "nonlinear_divergence", "singular"):
+    for name in (
+        "successful",
+        "nonlinear_max_steps_reached",
+        "nonlinear_divergence",
+        "singular",
+        "breakdown",
+        "stagnation",
+        "nonfinite",
+    ):
         member = getattr(optx.RESULTS, name, None)
         if member is not None and bool(np.asarray(result == member)[index]):
-            return name
+            return name.removeprefix("nonlinear_")
     return "unknown"
 
 
@@ -194,13 +234,16 @@ def fit_many(
 
     # Stage 1: the swarm, in chunks.
     t0 = time.perf_counter()
-    states = _swarm_start(batch, lowers, uppers, keys, program)
+    mesh = _particle_mesh(swarm)
+    states = _swarm_start(batch, lowers, uppers, keys, program, mesh)
     traces = [np.asarray(states.global_cost)[:, None]]
     times = [time.perf_counter() - t_all]
     done = 0
     while done < swarm.iterations:
         live = min(swarm.chunk, swarm.iterations - done)
-        states, costs = _swarm_chunk(batch, lowers, uppers, states, jnp.asarray(live), program)
+        states, costs = _swarm_chunk(
+            batch, lowers, uppers, states, jnp.asarray(live), program, mesh
+        )
         traces.append(np.asarray(costs)[:, :live])
         now = time.perf_counter() - t_all
         times += np.linspace(times[-1], now, live + 1)[1:].tolist()

@@ -1,9 +1,12 @@
-"""Particle swarm optimisation with the whole swarm evaluated as one batched call.
+"""Particle swarm optimisation of a batch of fits, every particle of every fit evaluated in
+one batched call per iteration.
 
-The swarm's cost function takes a (particles, dims) array and returns (particles,) costs, so a
-vmapped simulator evaluates every particle in one call per iteration. Iterations run in
-compiled chunks of fixed length whose number of live iterations is data, so that any
-iteration count runs through one program, with progress reported between chunks.
+The per-swarm steps (`scatter`, `at_rest`, `move`, `settle`) act on one fit's swarm and are
+vmapped over the batch; between them one cost call maps the positions of all swarms,
+(fits, particles, dims), to their costs, so that a vmapped (and, on several devices,
+sharded) simulator evaluates them at once. Iterations run in compiled chunks of fixed length
+whose number of live iterations is data, so that any iteration count runs through one
+program, with progress reported between chunks.
 """
 
 from collections.abc import Callable
@@ -32,11 +35,9 @@ def _finite_or_inf(cost):
     return jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
 
-def init_swarm(cost_fn, lower, upper, n_particles: int, key, start=None) -> SwarmState:
-    """A swarm spread over the box [lower, upper] by Latin-hypercube sampling, at rest.
-
-    ``start`` (d,), if given, becomes particle 0 (clipped into the box).
-    """
+def scatter(lower, upper, n_particles: int, key, start=None):
+    """Positions (n, d) spread over the box [lower, upper] by Latin-hypercube sampling, and
+    the key left over. ``start`` (d,), if given, becomes particle 0 (clipped into the box)."""
     d = lower.shape[0]
     k_perm, k_jit, key = jax.random.split(key, 3)
     perms = jax.vmap(lambda k: jax.random.permutation(k, n_particles))(
@@ -46,7 +47,12 @@ def init_swarm(cost_fn, lower, upper, n_particles: int, key, start=None) -> Swar
     position = lower + u * (upper - lower)
     if start is not None:
         position = position.at[0].set(jnp.clip(start, lower, upper))
-    cost = _finite_or_inf(cost_fn(position))
+    return position, key
+
+
+def at_rest(position, cost, key) -> SwarmState:
+    """A swarm at ``position`` (n, d) whose particles have costs ``cost`` (n,), at rest."""
+    cost = _finite_or_inf(cost)
     i = jnp.argmin(cost)
     return SwarmState(
         position=position,
@@ -59,8 +65,8 @@ def init_swarm(cost_fn, lower, upper, n_particles: int, key, start=None) -> Swar
     )
 
 
-def swarm_step(cost_fn, lower, upper, settings: Swarm, state: SwarmState) -> SwarmState:
-    """One PSO iteration: move every particle, evaluate the swarm in one call, update bests."""
+def move(settings: Swarm, lower, upper, state: SwarmState):
+    """One PSO move of every particle: the new positions, velocities and key."""
     key, k1, k2 = jax.random.split(state.key, 3)
     shape = state.position.shape
     r1, r2 = jax.random.uniform(k1, shape), jax.random.uniform(k2, shape)
@@ -76,8 +82,12 @@ def swarm_step(cost_fn, lower, upper, settings: Swarm, state: SwarmState) -> Swa
         below, above = x < lower, x > upper
         x = jnp.where(below, 2 * lower - x, jnp.where(above, 2 * upper - x, x))
         v = jnp.where(below | above, -v, v)
-    x = jnp.clip(x, lower, upper)
-    cost = _finite_or_inf(cost_fn(x))
+    return jnp.clip(x, lower, upper), v, key
+
+
+def settle(state: SwarmState, x, v, cost, key) -> SwarmState:
+    """The swarm after a move to ``x`` (velocities ``v``) whose costs are ``cost``."""
+    cost = _finite_or_inf(cost)
     better = cost < state.best_cost
     best_position = jnp.where(better[:, None], x, state.best_position)
     best_cost = jnp.where(better, cost, state.best_cost)
@@ -85,14 +95,19 @@ def swarm_step(cost_fn, lower, upper, settings: Swarm, state: SwarmState) -> Swa
     return SwarmState(x, v, best_position, best_cost, best_position[i], best_cost[i], key)
 
 
-def run_chunk(cost_fn: Callable, lower, upper, settings: Swarm, state, live):
-    """``settings.chunk`` iterations in one `lax.scan`, of which the first ``live`` (data)
-    move the swarm and the rest leave it as it is; returns the state and the global best
-    cost after each iteration."""
+def run_chunk(batch_cost: Callable, lowers, uppers, settings: Swarm, states, live):
+    """``settings.chunk`` iterations of a batch of swarms in one `lax.scan`, of which the
+    first ``live`` (data) move the swarms and the rest leave them as they are.
+
+    ``batch_cost`` maps the positions of every swarm, (fits, n, d), to their costs in one
+    call (one batched simulation of every particle of every fit). Returns the states and
+    each swarm's best cost after each iteration, (fits, chunk)."""
 
     def body(s, k):
-        moved = swarm_step(cost_fn, lower, upper, settings, s)
+        x, v, keys = jax.vmap(lambda lo, hi, st: move(settings, lo, hi, st))(lowers, uppers, s)
+        moved = jax.vmap(settle)(s, x, v, batch_cost(x), keys)
         s = jax.tree.map(lambda a, b: jnp.where(k < live, a, b), moved, s)
         return s, s.global_cost
 
-    return jax.lax.scan(body, state, jnp.arange(settings.chunk))
+    states, costs = jax.lax.scan(body, states, jnp.arange(settings.chunk))
+    return states, costs.T
