@@ -375,6 +375,22 @@ def use_compilation_cache(folder=None) -> pathlib.Path | None:
     return folder
 
 
+def use_cpu_cores(cores: int | None = None) -> int:
+    """Give JAX's CPU backend one device per core (``cores``, default every core of the
+    machine), so that the fits split each swarm's particles among them. Must run before JAX
+    computes anything; afterwards it changes nothing and returns the devices JAX has."""
+    import jax
+
+    cores = (os.cpu_count() or 1) if cores is None else int(cores)
+    if cores < 1:
+        raise ValueError(f"cores must be >= 1, got {cores}")
+    try:
+        jax.config.update("jax_num_cpu_devices", cores)
+    except RuntimeError:  # the backend is already running
+        return len(jax.devices())
+    return cores
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="vfjax",
@@ -384,6 +400,12 @@ def build_parser() -> argparse.ArgumentParser:
         "same kind skips compilation; --no-cache (or VFJAX_NO_CACHE=1) turns it off.",
     )
     p.add_argument("--version", action="version", version=f"vfjax {__version__}")
+    p.add_argument(
+        "--cores",
+        type=int,
+        default=None,
+        help="CPU cores the fits use (default: all; VFJAX_CORES)",
+    )
     p.add_argument(
         "--no-cache",
         action="store_true",
@@ -472,6 +494,12 @@ def main(argv=None) -> int:
 
     if not (args.no_cache or os.environ.get("VFJAX_NO_CACHE")):
         use_compilation_cache()
+    try:
+        cores = args.cores if args.cores is not None else os.environ.get("VFJAX_CORES")
+        use_cpu_cores(None if cores is None else int(cores))
+    except ValueError as err:
+        print(f"vfjax: error: --cores / VFJAX_CORES: {err}", file=sys.stderr)
+        return 2
     try:
         return args.func(args)
     except KeyboardInterrupt:

@@ -40,40 +40,49 @@ DEFAULT_SWARM = Swarm()
 DEFAULT_POLISH = Polish()
 
 
-def _swarm_costs(batch, positions, mesh):
-    """The swarm cost of every particle of every fit, (fits, n, d) -> (fits, n): one
-    vmapped simulation; with a ``mesh`` of several devices, the particles are split among
-    them (each device simulates its share of every fit's swarm)."""
+def _swarm_costs(batch, active, positions, mesh):
+    """The swarm cost of every particle of every fit, (fits, n, d) -> (fits, n): the fits
+    one after the other, each fit's particles in one vmapped simulation; the padding fits of
+    a batch (``active`` False) are skipped (cost inf). With a ``mesh`` of several devices,
+    the particles are split among them (each simulates its share of every fit's swarm)."""
 
-    def costs(b, x):
-        return jax.lax.map(lambda a: jax.vmap(a[0].swarm_cost)(a[1]), (b, x))
+    def costs(b, on, x):
+        def one(args):
+            p, live, z = args
+            skip = jnp.full(z.shape[:1], jnp.inf, z.dtype)
+            return jax.lax.cond(live, lambda: jax.vmap(p.swarm_cost)(z), lambda: skip)
+
+        return jax.lax.map(one, (b, on, x))
 
     if mesh is None:
-        return costs(batch, positions)
+        return costs(batch, active, positions)
     part = jax.sharding.PartitionSpec(None, "particles")
+    whole = jax.sharding.PartitionSpec()
     return jax.shard_map(
-        costs,
-        mesh=mesh,
-        in_specs=(jax.sharding.PartitionSpec(), part),
-        out_specs=part,
-        check_vma=False,
-    )(batch, positions)
+        costs, mesh=mesh, in_specs=(whole, whole, part), out_specs=part, check_vma=False
+    )(batch, active, positions)
 
 
 @eqx.filter_jit
-def _swarm_start(batch, lowers, uppers, keys, swarm: Swarm, mesh):
+def _swarm_start(batch, active, lowers, uppers, keys, swarm: Swarm, mesh):
     positions, keys = jax.vmap(lambda lo, hi, k: scatter(lo, hi, swarm.size, k, 0 * lo))(
         lowers, uppers, keys
     )
-    return jax.vmap(at_rest)(positions, _swarm_costs(batch, positions, mesh), keys)
+    return jax.vmap(at_rest)(positions, _swarm_costs(batch, active, positions, mesh), keys)
 
 
 @eqx.filter_jit
-def _swarm_chunk(batch, lowers, uppers, states, live, swarm: Swarm, mesh):
+def _swarm_chunk(batch, active, lowers, uppers, states, live, swarm: Swarm, mesh):
     def costs(x):
-        return _swarm_costs(batch, x, mesh)
+        return _swarm_costs(batch, active, x, mesh)
 
     return run_chunk(costs, lowers, uppers, swarm, states, live)
+
+
+def batch_bucket(n_fits: int) -> int:
+    """The number of fits a batch of ``n_fits`` is padded to in the compiled programs: the
+    next power of two. The padding fits are skipped (they cost no simulation)."""
+    return 1 << max(int(n_fits) - 1, 0).bit_length()
 
 
 def _particle_mesh(swarm: Swarm):
@@ -88,15 +97,34 @@ def _particle_mesh(swarm: Swarm):
 # The polish runs the fits of a batch one after the other (`lax.map`), not side by side:
 # each fit's solve is already batched over its Jacobian's columns, a vmapped solve would run
 # every fit for as many steps as the slowest one, and each fit then computes exactly what it
-# computes alone (a vmapped batch rounds differently from a batch of one).
+# computes alone (a vmapped batch rounds differently from a batch of one). Padding fits
+# (``active`` False) are skipped.
 @eqx.filter_jit
-def _polish_start(batch, positions):
-    return jax.lax.map(lambda a: a[0].start(a[1]), (batch, positions))
+def _polish_start(batch, active, positions):
+    def one(args):
+        p, live, z = args
+        y, cost = jax.eval_shape(p.start, z)
+        skip = (jnp.zeros(y.shape, y.dtype), jnp.full(cost.shape, jnp.inf, cost.dtype))
+        return jax.lax.cond(live, lambda: p.start(z), lambda: skip)
+
+    return jax.lax.map(one, (batch, active, positions))
 
 
 @eqx.filter_jit
-def _polish_batch(batch, y0, cost0, polish: Polish):
-    return jax.lax.map(lambda a: _polish_one(*a, polish), (batch, y0, cost0))
+def _polish_batch(batch, active, y0, cost0, polish: Polish):
+    def one(args):
+        p, live, y, c = args
+
+        def solve():
+            return _polish_one(p, y, c, polish)
+
+        # skipped: the start kept, no steps, result code 0 ("successful")
+        shapes = jax.eval_shape(solve)
+        skipped = (y, c, *(jnp.zeros(x.shape, x.dtype) for x in jax.tree.leaves(shapes[2:])))
+        skipped = jax.tree.unflatten(jax.tree.structure(shapes), jax.tree.leaves(skipped))
+        return jax.lax.cond(live, solve, lambda: skipped)
+
+    return jax.lax.map(one, (batch, active, y0, cost0))
 
 
 def _result_name(result, index) -> str:
@@ -217,11 +245,16 @@ def fit_many(
         raise ValueError("fit_many: S is fitted for pixel recordings only; do not mix units")
     linear = _common_coordinates([p for p, _, _ in prepared])
     problems = [dataclasses.replace(p, linear=linear) for p, _, _ in prepared]
-    batch = jax.tree.map(lambda *xs: jnp.stack(xs), *problems)
-    lowers = jnp.stack([lo for _, lo, _ in prepared])
-    uppers = jnp.stack([hi for _, _, hi in prepared])
+    # the batch is padded to a power of two with copies of fit 0 that are skipped, so that
+    # batches of similar sizes share their programs
+    n_fits = len(problems)
+    pad = batch_bucket(n_fits) - n_fits
+    batch = jax.tree.map(lambda *xs: jnp.stack(xs), *problems, *problems[:1] * pad)
+    active = jnp.arange(n_fits + pad) < n_fits
+    lowers = jnp.stack([lo for _, lo, _ in prepared] + [prepared[0][1]] * pad)
+    uppers = jnp.stack([hi for _, _, hi in prepared] + [prepared[0][2]] * pad)
     # fit i's key depends on i alone, not on the batch's size
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(len(problems)))
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n_fits + pad))
     program = swarm.program()
 
     show = progress if progress is not None else (swarm.iterations > 20 and sys.stderr.isatty())
@@ -235,14 +268,14 @@ def fit_many(
     # Stage 1: the swarm, in chunks.
     t0 = time.perf_counter()
     mesh = _particle_mesh(swarm)
-    states = _swarm_start(batch, lowers, uppers, keys, program, mesh)
+    states = _swarm_start(batch, active, lowers, uppers, keys, program, mesh)
     traces = [np.asarray(states.global_cost)[:, None]]
     times = [time.perf_counter() - t_all]
     done = 0
     while done < swarm.iterations:
         live = min(swarm.chunk, swarm.iterations - done)
         states, costs = _swarm_chunk(
-            batch, lowers, uppers, states, jnp.asarray(live), program, mesh
+            batch, active, lowers, uppers, states, jnp.asarray(live), program, mesh
         )
         traces.append(np.asarray(costs)[:, :live])
         now = time.perf_counter() - t_all
@@ -259,9 +292,9 @@ def fit_many(
 
     # Stage 2: the polish, one compiled solve for the whole batch.
     t1 = time.perf_counter()
-    y0, c0 = _polish_start(batch, states.global_position)
+    y0, c0 = _polish_start(batch, active, states.global_position)
     if polish is not None:
-        y, cost, steps, codes = _polish_batch(batch, y0, c0, polish)
+        y, cost, steps, codes = _polish_batch(batch, active, y0, c0, polish)
         y, cost, steps = np.asarray(y), np.asarray(cost), np.asarray(steps)
         names = [_result_name(codes, i) for i in range(len(problems))]
     else:
