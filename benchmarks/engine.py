@@ -23,6 +23,7 @@ import jax
 import numpy as np
 
 import vfjax
+from vfjax.cli import use_cpu_cores
 
 SHARED = pathlib.Path(__file__).resolve().parents[2] / "shared"
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
@@ -146,8 +147,10 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--only", choices=("a", "b", "c"))
     ap.add_argument("--quick", action="store_true", help="part b on four recordings")
+    ap.add_argument("--cores", type=int, default=None, help="CPU devices (default: every core)")
     args = ap.parse_args()
-    print(f"vfjax {vfjax.__version__}, jax {jax.__version__}, {os.cpu_count()} cores")
+    devices = use_cpu_cores(args.cores)  # as the command line does
+    print(f"vfjax {vfjax.__version__}, jax {jax.__version__}, {devices} CPU devices")
     if args.only in (None, "a"):
         part_a()
     if args.only in (None, "b"):

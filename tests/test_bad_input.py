@@ -144,6 +144,8 @@ def _write_case(tmp, case):
         return ["simulate", "N1", "--frames", "0", "-o", pathlib.Path(tmp) / "s.csv"]
     if case == "simulate_low_fps":
         return ["simulate", "N1", "--fps", "30", "-o", pathlib.Path(tmp) / "s.csv"]
+    if case == "zero_cores":
+        return ["--cores", "0", "simulate", "N1", "-o", pathlib.Path(tmp) / "s.csv"]
     raise KeyError(case)
 
 
@@ -175,6 +177,7 @@ CLI_CASES = {  # case: what the one-line message must say
     "playback_rate_video": r"v\.avi \(the rate the file states\): a frame rate of 30 Hz .* --fps",
     "simulate_bad_frames": r"n_frames must be an integer >= 1, got 0",
     "simulate_low_fps": r"--fps: a frame rate of 30 Hz",
+    "zero_cores": r"--cores / VFJAX_CORES: cores must be >= 1, got 0",
 }
 
 
