@@ -122,10 +122,8 @@ def _polish_batch(batch, active, y0, cost0, polish: Polish):
             return _polish_one(p, y, c, polish)
 
         # skipped: the start kept, no steps, result code 0 ("successful")
-        shapes = jax.eval_shape(solve)
-        skipped = (y, c, *(jnp.zeros(x.shape, x.dtype) for x in jax.tree.leaves(shapes[2:])))
-        skipped = jax.tree.unflatten(jax.tree.structure(shapes), jax.tree.leaves(skipped))
-        return jax.lax.cond(live, solve, lambda: skipped)
+        zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(solve))
+        return jax.lax.cond(live, solve, lambda: (y, c, *zeros[2:]))
 
     return jax.lax.map(one, (batch, active, y0, cost0))
 
