@@ -25,18 +25,16 @@ from vfjax import (
     PressureModulation,
     search_range,
 )
-from vfjax.datasets import demo_recording
-from vfjax.diagnosis import (
-    Candidate,
+from vfjax._diagnosis._score import (
     _candidate_columns,
     _effect_columns,
     _estimate,
     _hac,
     _sampler,
     _stack,
-    default_candidates,
-    effective_frames,
 )
+from vfjax.datasets import demo_recording
+from vfjax.diagnosis import Candidate, default_candidates, effective_frames
 
 
 # ------------------------------------------------------------------------------ the pieces
@@ -138,12 +136,11 @@ def test_a_terms_own_search_range_is_used():
     assert search_range(vfjax.preset("N3"), "b") is None
 
 
-def test_confirming_swarm_grows_with_the_candidates_parameters():
-    from vfjax.diagnosis import confirm_swarm
-
-    assert confirm_swarm((64, 100), 1) == (64, 100)
-    assert confirm_swarm((64, 100), 3) == (256, 150)  # a modulation: depth, frequency, phase
-    assert confirm_swarm((64, 100), 3, scale=False) == (64, 100)
+def test_confirming_search_grows_with_the_candidates_parameters():
+    plan = vfjax.RefitPlan(confirm_swarms=3, confirm_iterations=100)
+    assert plan.confirm_search(1) == (3, 100)
+    assert plan.confirm_search(3) == (12, 150)  # a modulation: depth, frequency, phase
+    assert plan.confirm_search(3, scale=False) == (3, 100)
 
 
 def test_bad_arguments_are_refused(shared_dir):
@@ -152,13 +149,19 @@ def test_bad_arguments_are_refused(shared_dir):
         vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
     )
     with pytest.raises(ValueError, match="alpha"):
-        vfjax.diagnose(result, rec, alpha=0.0)
-    with pytest.raises(ValueError, match="confirm"):
-        vfjax.diagnose(result, rec, confirm=(64, 0))
+        vfjax.Criteria(alpha=0.0)
+    with pytest.raises(ValueError, match="confirm_iterations"):
+        vfjax.RefitPlan(confirm_iterations=0)
+    with pytest.raises(TypeError, match="Criteria"):
+        vfjax.diagnose(result, rec, criteria=0.01)
+    with pytest.raises(TypeError, match="RefitPlan"):
+        vfjax.diagnose(result, rec, plan=(64, 100))
     with pytest.raises(ValueError, match="already active"):
         vfjax.diagnose(result, rec, [ClosureHold])
     with pytest.raises(ValueError, match="variance"):
         vfjax.score_tests(result, rec, variance="robust")
+    with pytest.raises(ValueError, match="variance"):
+        vfjax.Criteria(variance="robust")
 
 
 # ------------------------------------------------------------------- shared independent data
@@ -285,7 +288,7 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
         swarm=vfjax.Swarm(iterations=20),
         progress=False,
     )
-    d = vfjax.diagnose(result, rec, refit=False)
+    d = vfjax.diagnose(result, rec, plan=None)
     assert d.refits == {} and d.control is None
     assert d.ranking[0] == "GlottalGap" and d.scores["GlottalGap"].direction == +1
     path = vfjax.report.write_report(d, rec, tmp_path)

@@ -21,6 +21,16 @@ from . import (  # noqa: E402
     video,
     workflow,
 )
+from ._diagnosis import (  # noqa: E402
+    Candidate,
+    Criteria,
+    Diagnosis,
+    Investigation,
+    RefitPlan,
+    diagnose,
+    investigate,
+    score_tests,
+)
 from ._fit import (  # noqa: E402
     DEFAULT_PARAMS,
     FIT_STATUSES,
@@ -36,7 +46,6 @@ from ._sampling import Sampling, length_bucket  # noqa: E402
 from ._validate import Constraint, as_parameter  # noqa: E402
 from .cost import nmse  # noqa: E402
 from .descriptors import estimate_closure_duration  # noqa: E402
-from .diagnosis import Candidate, Diagnosis, diagnose, score_tests  # noqa: E402
 from .integrator import (  # noqa: E402
     DEFAULT_SUBSTEPS,
     RESULTS,
@@ -67,7 +76,6 @@ from .terms import (  # noqa: E402
     PressureModulation,
     TanhDamping,
 )
-from .workflow import Investigation, investigate  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -112,6 +120,8 @@ __all__ = [
     "TanhDamping",
     "VocalFoldModel",
     "Candidate",
+    "Criteria",
+    "RefitPlan",
     "Diagnosis",
     "Investigation",
     "diagnose",

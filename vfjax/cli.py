@@ -162,11 +162,11 @@ def _fit_and_report(recording, model, out, params, iterations, key_seed):
 def _diagnosis_section(out):
     """Fit, diagnose and extend on the embedded hidden-gap recording; writes its report to
     ``out/diagnosis/report.md`` and returns the main report's Markdown lines."""
+    from ._diagnosis import investigate
     from .datasets import demo_recording
     from .io import write_recording
     from .report import write_report
     from .terms.effects import GlottalGap
-    from .workflow import investigate
 
     rec = demo_recording("N3", effect=GlottalGap(a_gap=0.008), name_suffix="_gap")
     write_recording(rec, out / f"{rec.name}.csv")
@@ -235,10 +235,11 @@ def cmd_diagnose(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    from ._diagnosis import Criteria, investigate
+    from ._fit import Swarm
     from .io import check_output_folder, staged_output
     from .presets import initial_model
     from .report import write_report
-    from .workflow import investigate
 
     check_output_folder(args.out, args.force)
     rec = _load_input(args)
@@ -249,8 +250,8 @@ def cmd_diagnose(args) -> int:
             model,
             tuple(args.params),
             rounds=args.rounds,
-            alpha=args.alpha,
-            iterations=args.iterations,
+            criteria=Criteria(alpha=args.alpha),
+            swarm=Swarm(iterations=args.iterations),
             progress=True,
         )
         write_report(study, rec, out)

@@ -9,11 +9,10 @@ import pathlib
 
 import numpy as np
 
+from ._diagnosis import Diagnosis, Investigation, Round
 from .compare import plot_comparison
-from .diagnosis import Diagnosis
 from .io import save_figure, write_text
 from .recording import Recording
-from .workflow import Investigation, Round
 
 
 def _fmt(v, digits=4):
@@ -137,11 +136,12 @@ def _round_lines(i: int, r: Round, recording: Recording, folder: pathlib.Path, d
         "",
         "### Which effect is missing",
         "",
-        f"Score test at the off-value (autocorrelation-robust) and a quick refit with each "
+        f"Score test at the off-value (autocorrelation-robust) and a refit with each "
         f"candidate. An effect is *needed* when the evidence (twice the smaller of the two "
-        f"p-values) is below {d.level:.1e} ({d.alpha:g} over {len(d.scores)} candidates) and "
-        f"its refit removes at least {d.min_fall:.0%} of the squared error and "
-        f"{d.noise_multiple:g} noise floors' worth of it "
+        f"p-values) is below {d.level:.1e} ({d.criteria.alpha:g} over {len(d.scores)} "
+        f"candidates) and "
+        f"its refit removes at least {d.criteria.min_fall:.0%} of the squared error and "
+        f"{d.criteria.noise_multiple:g} noise floors' worth of it "
         f"(from NMSE {d.nmse_before:.3%}"
         + (
             ", the control refit without any effect"

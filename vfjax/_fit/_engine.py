@@ -82,6 +82,14 @@ def _swarm_chunk(batch, active, lowers, uppers, states, live, swarm: Swarm, mesh
     return run_chunk(costs, lowers, uppers, swarm, states, live)
 
 
+def _stack_strong(*xs):
+    """The leaves stacked, without JAX's weak type (a leaf built from a Python float is
+    weakly typed, one set by `VocalFoldModel.set` is not): a batch's program must not depend
+    on how its models were made."""
+    stacked = jnp.stack(xs)
+    return stacked.astype(stacked.dtype)
+
+
 def batch_bucket(n_fits: int) -> int:
     """The number of fits a batch of ``n_fits`` is padded to in the compiled programs: the
     next power of two. The padding fits are skipped (they cost no simulation)."""
@@ -174,6 +182,7 @@ def fit_many(
     hold: Sequence[Sequence[str]] | None = None,
     progress: bool | None = None,
     callback: Callable[[int, float], None] | None = None,
+    min_batch: int = 1,
 ) -> list[FitResult]:
     """Fit ``params`` of one model structure to many recordings as one batched job.
 
@@ -208,6 +217,8 @@ def fit_many(
         progress: show a progress bar (default: on a terminal, for more than 20 iterations).
         callback: called as ``callback(iteration, best_nmse)`` after each compiled chunk of
             swarm iterations and after the polish (best NMSE over the batch).
+        min_batch: pad the batch to at least this many fits (skipped; they cost no
+            simulation), so that jobs of different sizes up to it share their programs.
 
     Returns:
         One `FitResult` per recording (timings are those of the whole batch).
@@ -249,8 +260,8 @@ def fit_many(
     # the batch is padded to a power of two with copies of fit 0 that are skipped, so that
     # batches of similar sizes share their programs
     n_fits = len(problems)
-    pad = batch_bucket(n_fits) - n_fits
-    batch = jax.tree.map(lambda *xs: jnp.stack(xs), *problems, *problems[:1] * pad)
+    pad = batch_bucket(max(n_fits, int(min_batch))) - n_fits
+    batch = jax.tree.map(_stack_strong, *problems, *problems[:1] * pad)
     active = jnp.arange(n_fits + pad) < n_fits
     lowers = jnp.stack([lo for _, lo, _ in prepared] + [prepared[0][1]] * pad)
     uppers = jnp.stack([hi for _, _, hi in prepared] + [prepared[0][2]] * pad)
@@ -365,6 +376,7 @@ def fit(
     ``warmup``, ``substeps``, ``key``, ``progress``, ``callback``) and the same compiled
     programs; see there.
     """
-    if "hold" in options:
-        raise TypeError("fit takes no 'hold' (that is fit_many's, for batches of subsets)")
+    for name in ("hold", "min_batch"):
+        if name in options:
+            raise TypeError(f"fit takes no {name!r} (that is fit_many's, for batches)")
     return fit_many(model, [recording], params, **options)[0]

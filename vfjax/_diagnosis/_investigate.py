@@ -1,0 +1,157 @@
+"""`investigate`: fit, diagnose, add the missing effect, refit, and repeat.
+
+study = vfjax.investigate(recording)        # the paper's model, then up to 2 effects
+study.rounds[0].diagnosis.verdict           # what is missing, in words
+study.final.nmse                            # the error after the last extension
+vfjax.report.write_report(study, recording, "out/")
+"""
+
+import dataclasses
+from collections.abc import Sequence
+
+from .._fit import FitResult, Swarm, fit
+from .._fit._engine import DEFAULT_SWARM
+from ..presets import initial_model
+from ..recording import Recording
+from ._candidates import Candidate
+from ._diagnose import diagnose
+from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
+from ._refits import error, refit_each
+from ._verdict import Diagnosis
+
+
+@dataclasses.dataclass(frozen=True)
+class Round:
+    """One round: a fit, its diagnosis, and the extended fit if an effect was added.
+
+    Attributes:
+        fit: the model's fit at the start of the round.
+        diagnosis: `vfjax.diagnose` of that fit.
+        added: the effect added (its name), or None (the loop stops).
+        extended: the fit with the effect, warm-started from the diagnosis's refit (a full
+            swarm + LM fit from there), or None.
+    """
+
+    fit: FitResult
+    diagnosis: Diagnosis
+    added: str | None
+    extended: FitResult | None
+
+
+@dataclasses.dataclass(frozen=True)
+class Investigation:
+    """The rounds of `investigate`, first to last."""
+
+    recording_name: str
+    rounds: list
+
+    @property
+    def first(self) -> FitResult:
+        """The fit of the starting model."""
+        return self.rounds[0].fit
+
+    @property
+    def final(self) -> FitResult:
+        """The last fit: the extended model after the last round that added an effect; when
+        the last round added none and its diagnosis's control (the same model refitted with
+        the diagnosis's wider search) reached a lower error, that control refit."""
+        last = self.rounds[-1]
+        if last.extended is not None:
+            return last.extended
+        control = last.diagnosis.control
+        return control if control is not None and control.nmse < last.fit.nmse else last.fit
+
+    @property
+    def added(self) -> list[str]:
+        """The effects added, in order."""
+        return [r.added for r in self.rounds if r.added]
+
+
+def extend_from(
+    diagnosis: Diagnosis, recording: Recording, effect: str | None = None, iterations: int = 40
+) -> FitResult:
+    """The fit with ``effect`` (default: the diagnosis's best): a full search (swarms and
+    polish, ``iterations`` swarm iterations) of the fitted parameters and the effect's,
+    warm-started from the diagnosis's refit with the effect, through the diagnosis's own
+    compiled refit program (`RefitPlan`); the better of the two is returned."""
+    name = effect or diagnosis.best
+    if name is None:
+        raise ValueError("the diagnosis found no effect to add; name one with effect=...")
+    if name not in diagnosis.refits:
+        raise ValueError(
+            f"no refit of {name!r} in this diagnosis (no refits, or not a "
+            f"candidate); candidates: {sorted(diagnosis.refits)}"
+        )
+    start = diagnosis.refits[name].result
+    (cand,) = [c for c in diagnosis.candidates if c.name == name]
+    plan = diagnosis.plan
+    (polished,) = refit_each(
+        diagnosis.result,
+        recording,
+        [(cand, [dict(start.params)] * plan.starts)],
+        plan,
+        family=diagnosis.candidates,
+        warmup=start.sampling.warmup,
+        iterations=iterations,
+    )
+    return min(start, polished, key=error)
+
+
+def investigate(
+    recording: Recording,
+    model=None,
+    params: Sequence[str] = ("S", "K", "C_f", "t_c"),
+    *,
+    rounds: int = 2,
+    candidates: Sequence | None = None,
+    criteria: Criteria = DEFAULT_CRITERIA,
+    plan: RefitPlan = DEFAULT_PLAN,
+    swarm: Swarm = DEFAULT_SWARM,
+    progress: bool = False,
+) -> Investigation:
+    """Fit ``model`` (default `vfjax.initial_model`), diagnose, add the best effect, refit,
+    and repeat up to ``rounds`` times or until no effect is needed.
+
+    Arguments:
+        recording: the measured GAW.
+        model: the starting model (default: `initial_model(recording)`).
+        params: parameters of the first fit.
+        rounds: most effects to add.
+        candidates: the candidate effects (default: the catalogue), see `vfjax.diagnose`.
+        criteria: when an effect is needed (`Criteria`).
+        plan: the diagnoses' refits (`RefitPlan`); its ``confirm_iterations=None`` skips
+            the confirming refits (a few minutes less per round).
+        swarm: the first fit's swarm; each extension runs as many iterations.
+        progress: print what happens.
+    """
+    if not isinstance(plan, RefitPlan):
+        raise TypeError(f"plan must be a vfjax.RefitPlan, got {type(plan).__name__}")
+    model = initial_model(recording) if model is None else model
+    current = fit(model, recording, params=params, swarm=swarm, progress=progress)
+    if progress:
+        print(f"fit: NMSE {current.nmse:.4g}")
+    done = []
+    for _ in range(max(rounds, 1)):
+        remaining = (
+            None
+            if candidates is None
+            else [c for c in candidates if not current.model.has(_kind(c))]
+        )
+        d = diagnose(current, recording, remaining, criteria=criteria, plan=plan, progress=progress)
+        if progress:
+            print(d.verdict)
+        if d.best is None or len(done) >= rounds:
+            done.append(Round(current, d, None, None))
+            break
+        extended = extend_from(d, recording, iterations=swarm.iterations)
+        done.append(Round(current, d, d.best, extended))
+        current = extended
+        if len(done) == rounds:
+            break
+    return Investigation(recording.name, done)
+
+
+def _kind(candidate) -> type:
+    if isinstance(candidate, Candidate):
+        return type(candidate.term)
+    return candidate if isinstance(candidate, type) else type(candidate)

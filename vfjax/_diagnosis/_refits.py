@@ -1,0 +1,256 @@
+"""Refits: the model refitted with each candidate effect (and without, the control), every
+refit of a diagnosis through one compiled program."""
+
+import dataclasses
+import itertools
+from collections.abc import Sequence
+
+import numpy as np
+
+from .._fit import FitResult, fit_many, search_range
+from ..presets import initial_model
+from ..recording import Recording
+from ._candidates import Candidate, extended
+from ._options import DEFAULT_PLAN, RefitPlan
+from ._score import EffectScore, wrap_angle
+
+
+def refit_starts(
+    cand: Candidate, model, recording, score: EffectScore, n: int, anchor: dict | None = None
+) -> list[dict]:
+    """Starting values of the effect's parameters for the refit: just off the off-value (the
+    current fit), then the one-step estimates (at the next-best grid settings, or scaled)
+    and, for a candidate with a grid, a lattice over the grid and the phases; all clipped
+    into the parameters' ranges.
+
+    ``anchor`` (values of fitted parameters, e.g. `_anchor`'s) is a second base for the
+    lattice: every other lattice point starts from it instead of the current fit. A fit made
+    without the effect may have bent the fitted parameters far from where the effect needs
+    them (a closure hold stretched to mimic a pressure modulation's missing closures), and
+    from there the effect's basin is out of a small swarm's reach."""
+
+    def _range(name):
+        return search_range(model, name) or (-np.inf, np.inf, 0.1)
+
+    def near_off(est):
+        return {**est, **{t: cand.point[t] + 0.03 * _range(t)[2] for t in cand.tested}}
+
+    ests = list(score.estimates)
+    if len(cand.grid) > 1:
+        # far from the linear regime the one-step estimates mislead: add a lattice over the
+        # grid (four settings) and, for a sine/cosine pair, three phases, with the tested
+        # parameters one range-scale step off
+        phases = [k for k in cand.directions[0] if all(k in d for d in cand.directions)]
+        lattice = [
+            {
+                **ests[0],
+                **g,
+                **{t: cand.point[t] + _range(t)[2] for t in cand.tested},
+                **{k: wrap_angle(cand.directions[0][k] + a) for k in phases},
+            }
+            for g in (cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, 4))
+            for a in ((0.0, 2.1, -2.1) if phases else (0.0,))
+        ]
+        if anchor:
+            lattice = [{**p, **anchor} if i % 2 else p for i, p in enumerate(lattice)]
+        ests += lattice
+        n += len(ests) - 1
+    proposals = [near_off(ests[0]), ests[0]]
+    guess = type(cand.term).guess(recording)
+    if guess:  # values the data show directly (a closure duration) come second
+        proposals.insert(1, {**ests[0], **guess})
+    proposals += (
+        ests[1:]
+        if len(ests) > 1
+        else [
+            {
+                **ests[0],
+                **{t: cand.point[t] + f * (ests[0][t] - cand.point[t]) for t in cand.tested},
+            }
+            for f in (2.0, 0.5)
+        ]
+    )
+    starts = []
+    for s in proposals[:n]:
+        s = dict(s)
+        for name in cand.tested + cand.extra:
+            low, high, scale = _range(name)
+            value = s[name]
+            if cand.one_sided and name in cand.tested:
+                value = max(value, cand.point[name] + 1e-2 * scale)
+            s[name] = float(np.clip(value, low, high))
+        starts.append(s)
+    return starts
+
+
+def refit_with(
+    result: FitResult,
+    recording: Recording,
+    candidate=None,
+    starts: Sequence[dict] = ({},),
+    plan: RefitPlan = DEFAULT_PLAN,
+    *,
+    anchor: dict | None = None,
+) -> FitResult:
+    """Refit ``result``'s parameters plus the candidate's, from each of ``starts`` (values of
+    the candidate's parameters, and of fitted ones where given), as one batch; returns the
+    best refit. Without a candidate: the same refit of the fitted model alone (the control).
+
+    Each start is particle 0 of a swarm (``plan.swarm``) that searches the effect's
+    parameters over their range (`vfjax.search_range`) and the fitted ones within a factor
+    ``plan.box`` of their current values, of their ``anchor`` values if given (e.g. the
+    fit's starting model: an effect that changes the dynamics, such as the flow separation,
+    can move K and C_f far from a fit made without it) and of the starts' values; then the
+    polish (``plan.polish``). `refit_each` runs several candidates' refits as one batch.
+    """
+    return refit_each(result, recording, [(candidate, starts)], plan, anchor=anchor)[0]
+
+
+def refit_each(
+    result: FitResult,
+    recording: Recording,
+    jobs: Sequence[tuple],
+    plan: RefitPlan = DEFAULT_PLAN,
+    *,
+    family: Sequence[Candidate] | None = None,
+    anchor: dict | None = None,
+    warmup: float | None = None,
+    iterations: int | None = None,
+) -> list[FitResult]:
+    """`refit_with` for several candidates at once: ``jobs`` is a list of ``(candidate or
+    None, starts)``; returns the best refit of each job.
+
+    All jobs run as one `vfjax.fit_many` batch (padded to ``plan.batch`` fits), so that one
+    compiled program serves them all: every start simulates the fitted model extended by all
+    the ``family``'s candidates (default: the jobs'), those not its own held at their
+    off-values (where they change nothing). Every refit of a diagnosis passes the same
+    family, so that its quick, confirming and extending refits share one program. Each
+    returned fit's model carries its own candidate only. If the candidates' parameter names
+    clash, each job runs as its own batch.
+
+    Arguments:
+        result: the fit being diagnosed.
+        recording: its recording.
+        jobs: ``(candidate or None, starts)`` pairs; a start is a dict of parameter values.
+        plan: the refits' settings (`RefitPlan`).
+        family: the candidates whose terms the compiled program carries.
+        anchor: values of fitted parameters, a second centre of their search box.
+        warmup: simulated time before the first frame (s); default: the fit's.
+        iterations: swarm iterations (default: ``plan.swarm``'s).
+    """
+    cands = [
+        None if c is None else c if isinstance(c, Candidate) else Candidate.of(c) for c, _ in jobs
+    ]
+    family = [c for c in cands if c is not None] if family is None else list(family)
+    for c in cands:
+        if c is not None and not any(f.name == c.name for f in family):
+            family.append(c)
+    names = tuple(result.params)
+    own = [names + (() if c is None else c.tested + c.extra) for c in cands]
+    wide = extended(result.model, family)
+    if wide is None:
+        return [
+            refit_each(
+                result,
+                recording,
+                [job],
+                plan,
+                family=[c] if c is not None else [],
+                anchor=anchor,
+                warmup=warmup,
+                iterations=iterations,
+            )[0]
+            for c, job in zip(cands, jobs)
+        ]
+    added = [type(t) for t in wide.terms if not result.model.has(type(t))]
+    union = names + tuple(
+        dict.fromkeys(n for c in family for n in c.tested + c.extra if n not in names)
+    )
+    models, holds, owner = [], [], []
+    for j, (_, starts) in enumerate(jobs):
+        for s in starts:
+            models.append(wide.set(**{k: v for k, v in s.items() if k in own[j]}))
+            holds.append(tuple(n for n in union if n not in own[j]))
+            owner.append(j)
+    anchor = {n: v for n, v in (anchor or {}).items() if n in result.params and v > 0}
+    bounds = {}  # a factor box around the current values, the anchor's and every start's
+    for n, v in result.params.items():
+        if v > 0 and search_range(wide, n) is None:
+            given = [v, anchor.get(n, v)] + [s[n] for _, ss in jobs for s in ss if s.get(n, 0) > 0]
+            bounds[n] = (min(given) / plan.box, max(given) * plan.box)
+    swarm = plan.swarm
+    if iterations is not None:
+        swarm = dataclasses.replace(swarm, iterations=iterations)
+    fits = fit_many(
+        models,
+        [recording] * len(models),
+        params=union,
+        swarm=swarm,
+        polish=plan.polish,
+        warmup=result.sampling.warmup if warmup is None else warmup,
+        substeps=result.sampling.substeps,
+        bounds=bounds,
+        hold=holds,
+        min_batch=plan.batch,
+    )
+    best = []
+    for j, c in enumerate(cands):
+        fit = min((f for f, o in zip(fits, owner) if o == j), key=error)
+        # the other candidates sit at their off-values: drop them from the model
+        dormant = [k for k in added if c is None or k is not type(c.term)]
+        model = fit.model.without(*dormant) if dormant else fit.model
+        best.append(dataclasses.replace(fit, model=model))
+    return best
+
+
+def anchor_values(result: FitResult, recording: Recording) -> dict:
+    """The fitted parameters' values in the recording's starting model (`initial_model`),
+    a second centre for the refits' search; empty if there is none."""
+    try:
+        start = initial_model(recording).params()
+    except (ValueError, KeyError):
+        return {}
+    return {n: float(start[n]) for n in result.params if n in start}
+
+
+def confirm(result, recording, jobs, control, fitted, plan, criteria, anchor, family):
+    """Refit the leading candidate (the lowest quick-refit error) and the control again with
+    a larger search (`RefitPlan.confirm_search`: more swarms and iterations), from their
+    quick refits and from the jobs' anchored starts; keep each one's better fit. The control
+    gets the same search as the candidate, so that the fall it is measured against is not the
+    product of a bigger search alone.
+
+    A candidate that needs a longer warm-up than the fit's (its term's ``min_warmup``: a slow
+    modulation, whose history is in the state at the first frame) is first refitted again at
+    that warm-up from all its quick starts, and so is the control; the larger refits then
+    start from those. Returns (control, fitted) with the leader's refit replaced."""
+    top = min(range(len(fitted)), key=lambda i: error(fitted[i]))
+    (_, control_starts), (cand, cand_starts) = jobs[0], jobs[1 + top]
+    reference = min(error(result), error(control))
+    matters = error(fitted[top]) <= (1.0 - criteria.min_fall) * reference
+    swarms, iterations = plan.confirm_search(len(cand.tested + cand.extra), matters)
+    warmup = max(result.sampling.warmup, float(type(cand.term).min_warmup))
+    common = {"family": family, "anchor": anchor, "warmup": warmup}
+    quick = (control, fitted[top])
+    if warmup > result.sampling.warmup:
+        quick = refit_each(result, recording, [jobs[0], jobs[1 + top]], plan, **common)
+
+    def from_anchor(starts):
+        return [s for s in starts if anchor and all(s.get(k) == v for k, v in anchor.items())]
+
+    def cycled(starts):  # one swarm per start, the starts repeated (other keys) up to swarms
+        return list(itertools.islice(itertools.cycle(starts), swarms))
+
+    deep = [
+        (None, cycled([dict(quick[0].params)] + from_anchor(control_starts))),
+        (cand, cycled([dict(quick[1].params)] + (from_anchor(cand_starts) or cand_starts[-1:]))),
+    ]
+    c, f = refit_each(result, recording, deep, plan, iterations=iterations, **common)
+    fitted = list(fitted)
+    fitted[top] = min(fitted[top], quick[1], f, key=error)
+    return min(control, quick[0], c, key=error), fitted
+
+
+def error(fit: FitResult) -> float:
+    """A fit's NMSE for ranking (a non-finite one ranks last)."""
+    return fit.nmse if np.isfinite(fit.nmse) else np.inf
