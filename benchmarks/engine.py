@@ -30,7 +30,7 @@ COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 
 
 def cli_diagnose(name: str, cache: str) -> tuple[float, int, str]:
-    """Wall time, exit code and last output line of `vfjax diagnose` in a fresh process."""
+    """Wall time, exit code and verdict line of `vfjax diagnose` in a fresh process."""
     with tempfile.TemporaryDirectory() as out:
         env = {**os.environ, "VFJAX_CACHE_DIR": cache}
         env.pop("VFJAX_NO_CACHE", None)
@@ -50,8 +50,8 @@ def cli_diagnose(name: str, cache: str) -> tuple[float, int, str]:
             env=env,
         )
         wall = time.perf_counter() - t0
-    lines = [x for x in proc.stdout.splitlines() if x.strip()]
-    return wall, proc.returncode, lines[-1] if lines else proc.stderr[-300:]
+    verdicts = [x for x in proc.stdout.splitlines() if x.startswith(f"{name}: ")]
+    return wall, proc.returncode, verdicts[-1] if verdicts else proc.stderr[-300:]
 
 
 def part_a():

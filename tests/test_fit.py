@@ -243,8 +243,8 @@ def _compilations():
 
 
 def test_a_new_length_and_frame_rate_compile_nothing_new():
-    """After one fit, a recording of another length (same bucket), frame rate and f0 runs
-    through the same compiled programs: no compilation at all."""
+    """After one fit, a recording of another length (same bucket), frame rate and f0 gets its
+    starting model and its fit through the same compiled programs: no compilation at all."""
     truth = vfjax.preset("N3")
     swarm = Swarm(size=8, iterations=4, chunk=4)
     polish = Polish(max_steps=3)
@@ -253,8 +253,10 @@ def test_a_new_length_and_frame_rate_compile_nothing_new():
     second = Recording(area=np.clip(np.asarray(sim.area), 0, None), fps=6000.0, name="second")
     assert vfjax.length_bucket(first.n_frames) == vfjax.length_bucket(second.n_frames)
     fit(truth, first, swarm=swarm, polish=polish, progress=False)
+    vfjax.initial_model(first)  # its f0 matching simulates in the length bucket of 0.08 s
     seen = _compilations()
     start = len(seen)
+    vfjax.initial_model(second)
     result = fit(truth, second, swarm=swarm, polish=polish, progress=False, warmup=0.03)
     assert len(seen) == start, f"{len(seen) - start} new compilations"
     assert result.sampling.fps == 6000.0 and result.sampling.n_frames == 170
@@ -273,6 +275,10 @@ def test_a_fit_in_a_batch_equals_the_fit_alone():
     key = jax.random.key(3)
     batch = fit_many(_start(truth), recs, swarm=swarm, key=key, progress=False)
     alone = fit_many(_start(truth), recs[:1], swarm=swarm, key=key, progress=False)[0]
+    # alone, padded with skipped fits to the batch's size (its programs)
+    (padded,) = fit_many(_start(truth), recs[:1], swarm=swarm, key=key, min_batch=3)
+    assert padded.nmse == pytest.approx(alone.nmse, rel=1e-9)
+    assert padded.params == pytest.approx(alone.params, rel=1e-9)
     assert batch[0].pso_trace == pytest.approx(alone.pso_trace, rel=1e-9)
     assert batch[0].nmse == pytest.approx(alone.nmse, rel=1e-9)
     for name, value in alone.params.items():

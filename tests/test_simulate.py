@@ -187,3 +187,20 @@ def test_the_early_stopping_loop_equals_the_differentiated_scan():
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     np.testing.assert_array_equal(np.asarray(d_area), np.asarray(d_area_loop))
     assert np.all(np.isfinite(np.asarray(d_area))) and np.any(np.asarray(d_area) != 0)
+
+
+def test_a_sampling_object_samples_as_its_fields():
+    """`simulate(model, Sampling)` samples as the frame rate, frames, substeps, warm-up (as
+    t_start) and shift range it holds; mixing the two forms is refused."""
+    m = vfjax.preset("N1")
+    s = vfjax.Sampling(fps=5000.0, n_frames=120, substeps=5, warmup=0.02, max_time_shift=0.004)
+    a = vfjax.simulate(m, s, time_shift=0.001)
+    b = vfjax.simulate(
+        m, 5000.0, 120, substeps=5, t_start=0.02, max_time_shift=0.004, time_shift=0.001
+    )
+    np.testing.assert_array_equal(np.asarray(a.area), np.asarray(b.area))
+    assert a.area.shape == (120,) and float(np.max(a.area)) > 100.0
+    with pytest.raises(TypeError, match="n_frames given with a Sampling"):
+        vfjax.simulate(m, s, 120)
+    with pytest.raises(TypeError, match="give n_frames"):
+        vfjax.simulate(m, 5000.0)

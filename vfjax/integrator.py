@@ -491,13 +491,13 @@ def _as_seconds(name: str, value, *, positive: bool = False) -> float:
 
 def simulate(
     model: VocalFoldModel,
-    fps: float,
-    n_frames: int,
+    fps: float | Sampling,
+    n_frames: int | None = None,
     *,
-    substeps: int = DEFAULT_SUBSTEPS,
-    t_start: float = 0.0,
+    substeps: int | None = None,
+    t_start: float | None = None,
     time_shift: ArrayLike = 0.0,
-    max_time_shift: float = 0.0,
+    max_time_shift: float | None = None,
     initial_displacement: ArrayLike | None = None,
     initial_velocity: ArrayLike = 0.0,
     max_events: int | None = None,
@@ -521,10 +521,14 @@ def simulate(
 
     Arguments:
         model: the model (`vfjax.paper_model`, `vfjax.preset`, ...).
-        fps: camera frame rate (Hz), a concrete number.
+        fps: camera frame rate (Hz), a concrete number; or a `vfjax.Sampling` (frame rate,
+            frames, substeps, warm-up as ``t_start``, time-shift range), as a fit samples
+            the model (`FitResult.sampling`): then ``n_frames``, ``substeps``, ``t_start``
+            and ``max_time_shift`` are not given.
         n_frames: number of frames, an integer (a NumPy integer is accepted; 201.0 is not).
-        substeps: RK4 steps per frame (the step is 1 / (substeps * fps)).
-        t_start: start of sampling (s), e.g. to skip the onset transient.
+        substeps: RK4 steps per frame (the step is 1 / (substeps * fps)); default
+            `DEFAULT_SUBSTEPS`.
+        t_start: start of sampling (s), e.g. to skip the onset transient; default 0.
         time_shift: extra, differentiable delay of the sampling (s), in [-t_start,
             max_time_shift] (the frames must lie in the integrated interval).
         max_time_shift: the largest ``time_shift`` that will be used (s); extends the
@@ -552,6 +556,27 @@ def simulate(
             a negative frame rate, a concrete time shift outside [-t_start, max_time_shift], a run
             longer than `MAX_ITERATIONS`, ...), before anything is allocated.
     """
+    if isinstance(fps, Sampling):
+        given = {
+            "n_frames": n_frames,
+            "substeps": substeps,
+            "t_start": t_start,
+            "max_time_shift": max_time_shift,
+        }
+        clash = [name for name, value in given.items() if value is not None]
+        if clash:
+            raise TypeError(
+                f"simulate: {', '.join(clash)} given with a Sampling, which sets them; give "
+                "either a Sampling or fps and n_frames"
+            )
+        sampling = fps
+        fps, n_frames, substeps = sampling.fps, sampling.n_frames, sampling.substeps
+        t_start, max_time_shift = sampling.warmup, sampling.max_time_shift
+    elif n_frames is None:
+        raise TypeError("simulate: give n_frames with a frame rate (or a vfjax.Sampling)")
+    substeps = DEFAULT_SUBSTEPS if substeps is None else substeps
+    t_start = 0.0 if t_start is None else t_start
+    max_time_shift = 0.0 if max_time_shift is None else max_time_shift
     fps = _as_seconds("fps (frame rate, Hz)", fps, positive=True)
     n_frames = _as_count("n_frames", n_frames, 1)
     substeps = _as_count("substeps", substeps, 1)
@@ -813,4 +838,28 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
         shift_ok,
         counted,
         warmed,
+    )
+
+
+@eqx.filter_jit
+def _frames(model, grid, shift, n_out, n_rows):
+    return simulate_frames(model, grid, shift, n_out=n_out, n_rows=n_rows)
+
+
+def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift=0.0) -> Simulation:
+    """The `Simulation` of ``model`` sampled as a fit samples it (``sampling``, frames shifted
+    by ``time_shift`` s); its dense output covers the frames and a short lookback before
+    them. One compiled program per model structure and length bucket (`window_size`),
+    whatever the frame rate, frame count within the bucket and warm-up; forward-mode
+    derivatives only (`simulate_frames`)."""
+    n_out, n_rows = window_size(sampling)
+    sim = _frames(model, sampled_grid(sampling), jnp.asarray(float(time_shift)), n_out, n_rows)
+    n = sampling.n_frames
+    per_frame = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
+    # the recording's frames cut off the bucket on the host (a device slice would compile a
+    # program per frame count)
+    return eqx.tree_at(
+        lambda s: [getattr(s, f) for f in per_frame],
+        sim,
+        [np.asarray(getattr(sim, f))[:n] for f in per_frame],
     )

@@ -2,8 +2,9 @@
 
 import numpy as np
 
+from ._sampling import Sampling
 from .descriptors import estimate_closure_duration, fundamental_frequency
-from .integrator import simulate
+from .integrator import fitted_simulation
 from .model import VocalFoldModel
 from .recording import Recording
 from .subject import Subject
@@ -132,8 +133,10 @@ def match_fundamental_frequency(model: VocalFoldModel, recording: Recording, ste
         return model
     n = max(recording.n_frames, int(0.08 * recording.fps))
 
-    def f0_of(k):
-        sim = simulate(model.set(K=k), recording.fps, n, t_start=0.02, throw=False)
+    sampling = Sampling(recording.fps, n, warmup=0.02)
+
+    def f0_of(k):  # one compiled program per length bucket, whatever the frame rate
+        sim = fitted_simulation(model.set(K=k), sampling)
         if not bool(sim.complete):
             return float("nan")
         return fundamental_frequency(np.asarray(sim.area), recording.fps)

@@ -3,12 +3,10 @@
 import dataclasses
 import math
 
-import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 from .._sampling import Sampling
-from ..integrator import Simulation, sampled_grid, simulate_frames, window_size
+from ..integrator import Simulation, fitted_simulation
 from ..io import write_json
 from ..model import VocalFoldModel
 from ..recording import Recording
@@ -18,25 +16,6 @@ from ._options import Swarm
 #: The values of `FitResult.status`.
 FIT_STATUSES = ("successful", "at_bound", "worse_than_mean", "not_finite", "unknown")
 _EDGE = 1e-3  # a value within this fraction of its box's width from an edge is at it
-
-
-@eqx.filter_jit
-def _frames(model, grid, shift, n_out, n_rows):
-    return simulate_frames(model, grid, shift, n_out=n_out, n_rows=n_rows)
-
-
-def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift: float) -> Simulation:
-    """The `Simulation` of ``model`` sampled as a fit samples it (``sampling``, frames shifted
-    by ``time_shift`` s); its dense output covers the frames and a short lookback before
-    them. One compiled program per model structure and length bucket
-    (`vfjax.integrator.window_size`), whatever the frame rate and warm-up."""
-    n_out, n_rows = window_size(sampling)
-    sim = _frames(model, sampled_grid(sampling), jnp.asarray(float(time_shift)), n_out, n_rows)
-    n = sampling.n_frames
-    per_frame = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
-    return eqx.tree_at(
-        lambda s: [getattr(s, f) for f in per_frame], sim, [getattr(sim, f)[:n] for f in per_frame]
-    )
 
 
 def fitted_area(model: VocalFoldModel, sampling: Sampling, time_shift: float) -> np.ndarray:
