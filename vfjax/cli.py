@@ -185,7 +185,7 @@ def _diagnosis_section(out):
         "",
         f"`{rec.name}.csv` is made by vfjax: subject N3 with a hidden posterior gap of "
         "0.008 cm² (`GlottalGap`), 2 px noise. vfjax fits the paper's model, compares it with "
-        "the measurement, tests every catalogue effect (score test + quick refit), adds the "
+        "the measurement, tests every catalogue effect (score test + refit), adds the "
         "one that is needed and refits.",
         "",
         f"- paper's model: NMSE {study.first.nmse:.3%}",

@@ -44,7 +44,7 @@ def plot_candidates(d: Diagnosis, ax=None):
     if d.noise_nmse > 0:
         ax.axvline(d.noise_nmse, color="#1d3557", ls="--", lw=1.0, label="noise floor")
     ax.set_xscale("log")
-    ax.set_xlabel("NMSE after a quick refit with the effect")
+    ax.set_xlabel("NMSE after the refit with the effect")
     ax.legend(frameon=False, fontsize=7)
     ax.set_title("green: needed, yellow: significant only", fontsize=8)
     return ax

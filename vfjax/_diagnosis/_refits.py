@@ -23,7 +23,7 @@ def refit_starts(
     and, for a candidate with a grid, a lattice over the grid and the phases; all clipped
     into the parameters' ranges.
 
-    ``anchor`` (values of fitted parameters, e.g. `_anchor`'s) is a second base for the
+    ``anchor`` (values of fitted parameters, e.g. `anchor_values`') is a second base for the
     lattice: every other lattice point starts from it instead of the current fit. A fit made
     without the effect may have bent the fitted parameters far from where the effect needs
     them (a closure hold stretched to mimic a pressure modulation's missing closures), and

@@ -13,7 +13,7 @@ from ._score import EffectScore
 
 @dataclasses.dataclass(frozen=True)
 class EffectRefit:
-    """The quick refit with one candidate effect.
+    """The refit with one candidate effect (the confirming refit's, for the leader).
 
     Attributes:
         effect: the effect's name.
@@ -42,7 +42,7 @@ class Diagnosis:
         recording_name: its recording's name.
         comparison: the measured-vs-fitted `Comparison`.
         scores: score tests by effect name.
-        refits: quick refits by effect name (empty without refits).
+        refits: the refits by effect name (empty without refits).
         control: the same refit without any effect (None without refits): the error the
             fitted model itself reaches with the refit's search; falls are measured from the
             lower of its error and the fit's.
