@@ -322,3 +322,47 @@ def test_fits_from_another_subject_find_the_right_basin():
             start, rec, params=("S", "K", "C_f", "t_c"), key=jax.random.key(seed), progress=False
         )
         assert result.nmse < 1e-3, (seed, result.nmse, result.params)
+
+
+def test_restarts_keep_the_best_and_restart_zero_is_the_fit_alone():
+    """A fit with restarts is the best of independent searches, the first of which is the
+    fit without restarts (same key), and each recording of a batch keeps its own best."""
+    truth = vfjax.preset("N1")
+    rec = _recording(truth, t_start=0.0305, noise_px=1.0)
+    swarm = Swarm(size=12, iterations=8)
+    key = jax.random.key(4)
+    alone = fit(_start(truth), rec, swarm=swarm, key=key, progress=False)
+    three = fit(_start(truth), rec, swarm=swarm, key=key, restarts=3, progress=False)
+    assert alone.restart_nmse == [alone.nmse]
+    assert len(three.restart_nmse) == 3
+    assert three.restart_nmse[0] == pytest.approx(alone.nmse, rel=1e-9)
+    assert three.nmse == min(three.restart_nmse)
+    assert len(set(three.restart_nmse)) == 3  # independent searches, not copies
+    assert three.nmse == pytest.approx(float(vfjax.nmse(rec.area, three.fitted_gaw())), rel=1e-9)
+    with pytest.raises(ValueError, match="restarts"):
+        fit(_start(truth), rec, swarm=swarm, restarts=0)
+
+
+def test_a_first_fit_searches_the_pressure_and_the_hold_from_zero():
+    """`fit_recording` fits P_s unless the sidecar states it, and searches t_c linearly from
+    0 (no hold), so a fit that needs no hold is not at a bound. On a recording of N1 at
+    a pressure 40 % below the preset's (2 px noise), the paper's protocol (P_s at the
+    preset) stays far above the noise; the first fit reaches the noise's own NMSE."""
+    truth = vfjax.preset("N1", P_s_dyne_per_cm2=6750.0)
+    rec = _recording(truth, t_start=0.0307, noise_px=2.0, name="low_pressure")
+    rec = Recording(rec.area, rec.fps, metadata={"sex": "male"}, name=rec.name)
+    start = vfjax.initial_model(rec)
+    assert vfjax.first_fit_parameters(rec, start) == ("S", "K", "C_f", "t_c", "P_s")
+    box = vfjax.first_fit_bounds(start, ("S", "K", "C_f", "t_c", "P_s"))
+    assert box["t_c"][0] == 0.0 and box["P_s"] == vfjax.PRESSURE_RANGE
+    noise_nmse = rec.n_frames * 2.0**2 / float(np.sum(rec.area**2))
+    paper = fit(start, rec, ("S", "K", "C_f", "t_c"), progress=False)
+    first = vfjax.fit_recording(rec, start, progress=False)
+    assert paper.nmse > 3 * noise_nmse, paper.nmse
+    assert first.nmse < 1.3 * noise_nmse, (first.nmse, noise_nmse, first.params)
+    assert first.status == "successful" and first.bounds["t_c"][0] == 0.0
+    assert len(first.restart_nmse) == vfjax.FIRST_FIT_RESTARTS
+    # a stated pressure is the model's and is not searched
+    stated = Recording(rec.area, rec.fps, metadata={"subglottal_pressure_dyne_per_cm2": 6750.0})
+    assert float(vfjax.initial_model(stated).params()["P_s"]) == 6750.0
+    assert "P_s" not in vfjax.first_fit_parameters(stated, vfjax.initial_model(stated))

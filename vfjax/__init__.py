@@ -33,13 +33,18 @@ from ._diagnosis import (  # noqa: E402
 )
 from ._fit import (  # noqa: E402
     DEFAULT_PARAMS,
+    FIRST_FIT_RESTARTS,
     FIT_STATUSES,
+    PRESSURE_RANGE,
     FitResult,
     Polish,
     Swarm,
     default_warmup,
+    first_fit_bounds,
+    first_fit_parameters,
     fit,
     fit_many,
+    fit_recording,
     search_range,
 )
 from ._sampling import Sampling, length_bucket  # noqa: E402
@@ -129,8 +134,13 @@ __all__ = [
     "score_tests",
     "fit",
     "fit_many",
+    "fit_recording",
+    "first_fit_bounds",
+    "first_fit_parameters",
     "DEFAULT_PARAMS",
+    "FIRST_FIT_RESTARTS",
     "FIT_STATUSES",
+    "PRESSURE_RANGE",
     "Polish",
     "Sampling",
     "Swarm",

@@ -100,7 +100,7 @@ def _run(args, out, plt) -> int:
     rec = demo_recording()
     write_recording(rec, out / f"{rec.name}.csv")
     start = initial_model(rec, template="N4")
-    result = _fit_and_report(rec, start, out, ("S", "K", "C_f", "t_c"), 60, 0)
+    result = _fit_and_report(rec, start, out, None, 60, 0)
     truth = preset("N3").params()
     lines += [
         "## Fit of the embedded demo recording",
@@ -134,18 +134,19 @@ def _run(args, out, plt) -> int:
     return 0
 
 
-def _fit_and_report(recording, model, out, params, iterations, key_seed):
+def _fit_and_report(recording, model, out, params, iterations, key_seed, restarts=None):
     import jax
     import matplotlib.pyplot as plt
 
-    from ._fit import Swarm, fit
+    from ._fit import FIRST_FIT_RESTARTS, Swarm, fit_recording
     from .io import save_figure
     from .plotting import plot_convergence, plot_overlay
 
-    result = fit(
-        model,
+    result = fit_recording(
         recording,
-        params=params,
+        model,
+        params,
+        restarts=FIRST_FIT_RESTARTS if restarts is None else restarts,
         swarm=Swarm(iterations=iterations),
         key=jax.random.key(key_seed),
     )
@@ -248,8 +249,9 @@ def cmd_diagnose(args) -> int:
         study = investigate(
             rec,
             model,
-            tuple(args.params),
+            None if args.params is None else tuple(args.params),
             rounds=args.rounds,
+            restarts=args.restarts,
             criteria=Criteria(alpha=args.alpha),
             swarm=Swarm(iterations=args.iterations),
             progress=True,
@@ -273,7 +275,8 @@ def cmd_fit(args) -> int:
     rec = _load_input(args)
     model = initial_model(rec, template=args.start)
     with staged_output(args.out, args.force) as out:
-        result = _fit_and_report(rec, model, out, tuple(args.params), args.iterations, args.seed)
+        params = None if args.params is None else tuple(args.params)
+        result = _fit_and_report(rec, model, out, params, args.iterations, args.seed, args.restarts)
     units = result.units
     print(
         f"{rec.name}: NMSE {result.nmse:.3e} ({result.status}); "
@@ -433,8 +436,14 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument(
         "--params",
         nargs="+",
-        default=["S", "K", "C_f", "t_c"],
-        help="parameters to fit (default: %(default)s; the paper fitted S, K, C_f)",
+        help="parameters to fit (default: S, K, C_f, t_c, and P_s unless the sidecar states "
+        "subglottal_pressure_dyne_per_cm2; the paper fitted S, K, C_f)",
+    )
+    f.add_argument(
+        "--restarts",
+        type=int,
+        default=4,
+        help="independent searches, the best kept (default: %(default)s)",
     )
     f.add_argument(
         "--start",
@@ -455,8 +464,14 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument(
         "--params",
         nargs="+",
-        default=["S", "K", "C_f", "t_c"],
-        help="parameters of the first fit (default: %(default)s)",
+        help="parameters of the first fit (default: S, K, C_f, t_c, and P_s unless the "
+        "sidecar states subglottal_pressure_dyne_per_cm2)",
+    )
+    dg.add_argument(
+        "--restarts",
+        type=int,
+        default=4,
+        help="independent searches of the first fit (default: %(default)s)",
     )
     dg.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from")
     dg.add_argument("--rounds", type=int, default=2, help="most effects to add (default: 2)")

@@ -25,7 +25,9 @@ def demo_recording(
 
     Sampled from 27.7 ms after the onset (an arbitrary point of the cycle; 7.7 ms after the
     model's `default_warmup` where that is longer, e.g. with a slow modulation), with Gaussian
-    noise of ``noise_px`` pixels (seeded), rounded to whole pixels and clipped at zero.
+    noise of ``noise_px`` pixels (seeded), rounded to whole pixels and clipped at zero. The
+    metadata state the subject's sex and the subglottal pressure (as a lab that measured it
+    would), so that a first fit (`vfjax.fit_recording`) holds P_s at the truth.
 
     Arguments:
         name: the preset (N1-N4).
@@ -51,6 +53,7 @@ def demo_recording(
     area = np.clip(np.round(area), 0.0, None)
     meta = {
         "sex": "male" if name in ("N1", "N2") else "female",
+        "subglottal_pressure_dyne_per_cm2": float(model.params()["P_s"]),
         "source": "vfjax demo",
         "subject": name,
         "noise_px": noise_px,

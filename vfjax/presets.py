@@ -110,14 +110,17 @@ def preset(name: str, **overrides) -> VocalFoldModel:
 
 def initial_model(recording: Recording, template: str | None = None) -> VocalFoldModel:
     """A starting model for ``recording``: the paper's preset for its sex (N1 male, N3
-    female, or ``template``), with the sidecar's fold mass and length if given, and the closure
-    duration t_c measured on the GAW (`estimate_closure_duration`), as the paper did."""
+    female, or ``template``), with the sidecar's fold mass, length and subglottal pressure
+    if given, the closure duration t_c measured on the GAW (`estimate_closure_duration`), as
+    the paper did, and K matched to the recording's f0 (`match_fundamental_frequency`)."""
     sex = recording.metadata.get("sex")
     model = preset(template or ("N3" if sex == "female" else "N1"))
     if "vocal_fold_length_cm" in recording.metadata:
         model = model.set(l=recording.metadata["vocal_fold_length_cm"])
     if "vocal_fold_mass_g" in recording.metadata:
         model = model.set(M=recording.metadata["vocal_fold_mass_g"])
+    if "subglottal_pressure_dyne_per_cm2" in recording.metadata:
+        model = model.set(P_s=recording.metadata["subglottal_pressure_dyne_per_cm2"])
     t_c = estimate_closure_duration(recording)
     if t_c is not None and model.closure_duration is not None:
         model = model.set(t_c=t_c)

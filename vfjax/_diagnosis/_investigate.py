@@ -9,9 +9,8 @@ vfjax.report.write_report(study, recording, "out/")
 import dataclasses
 from collections.abc import Sequence
 
-from .._fit import FitResult, Swarm, fit
+from .._fit import FIRST_FIT_RESTARTS, FitResult, Swarm, fit_recording
 from .._fit._engine import DEFAULT_SWARM
-from ..presets import initial_model
 from ..recording import Recording
 from ._candidates import Candidate
 from ._diagnose import diagnose
@@ -100,34 +99,38 @@ def extend_from(
 def investigate(
     recording: Recording,
     model=None,
-    params: Sequence[str] = ("S", "K", "C_f", "t_c"),
+    params: Sequence[str] | None = None,
     *,
     rounds: int = 2,
     candidates: Sequence | None = None,
     criteria: Criteria = DEFAULT_CRITERIA,
     plan: RefitPlan = DEFAULT_PLAN,
     swarm: Swarm = DEFAULT_SWARM,
+    restarts: int = FIRST_FIT_RESTARTS,
     progress: bool = False,
 ) -> Investigation:
-    """Fit ``model`` (default `vfjax.initial_model`), diagnose, add the best effect, refit,
-    and repeat up to ``rounds`` times or until no effect is needed.
+    """Fit the recording (`vfjax.fit_recording`), diagnose, add the best effect, refit, and
+    repeat up to ``rounds`` times or until no effect is needed.
 
     Arguments:
         recording: the measured GAW.
         model: the starting model (default: `initial_model(recording)`).
-        params: parameters of the first fit.
+        params: parameters of the first fit (default: `vfjax.first_fit_parameters`: S, K,
+            C_f, t_c, and P_s unless the recording states it).
         rounds: most effects to add.
         candidates: the candidate effects (default: the catalogue), see `vfjax.diagnose`.
         criteria: when an effect is needed (`Criteria`).
         plan: the diagnoses' refits (`RefitPlan`); its ``confirm_iterations=None`` skips
             the confirming refits (a few minutes less per round).
         swarm: the first fit's swarm; each extension runs as many iterations.
+        restarts: independent searches of the first fit.
         progress: print what happens.
     """
     if not isinstance(plan, RefitPlan):
         raise TypeError(f"plan must be a vfjax.RefitPlan, got {type(plan).__name__}")
-    model = initial_model(recording) if model is None else model
-    current = fit(model, recording, params=params, swarm=swarm, progress=progress)
+    current = fit_recording(
+        recording, model, params, restarts=restarts, swarm=swarm, progress=progress
+    )
     if progress:
         print(f"fit: NMSE {current.nmse:.4g}")
     done = []

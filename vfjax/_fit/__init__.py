@@ -11,13 +11,22 @@ time_shift``, where the time shift is a fitted, differentiable parameter in [0, 
 - ``_polish``: the optimistix polish;
 - ``_options``: `Swarm` and `Polish`;
 - ``_result``: `FitResult` and its status;
-- ``_engine``: `fit_many` and `fit`, which run every fit as a batch of compiled programs.
+- ``_engine``: `fit_many` and `fit`, which run every fit as a batch of compiled programs;
+- ``_first``: `fit_recording`, a recording's first fit (free pressure, a box that reaches the
+  model's regimes, restarts).
 
 Cost: NMSE = sum((A_exp - A_sim)²) / sum(A_exp²) (`vfjax.nmse`). The simulated GAW is clipped
 at zero area before it is compared: a camera sees no negative area.
 """
 
 from ._engine import DEFAULT_PARAMS, fit, fit_many
+from ._first import (
+    FIRST_FIT_RESTARTS,
+    PRESSURE_RANGE,
+    first_fit_bounds,
+    first_fit_parameters,
+    fit_recording,
+)
 from ._options import Polish, Swarm
 from ._problem import DEFAULT_FACTORS, LINEAR, WARMUP, default_warmup, search_range
 from ._result import FIT_STATUSES, FitResult, fitted_area
@@ -25,15 +34,20 @@ from ._result import FIT_STATUSES, FitResult, fitted_area
 __all__ = [
     "DEFAULT_FACTORS",
     "DEFAULT_PARAMS",
+    "FIRST_FIT_RESTARTS",
     "FIT_STATUSES",
     "LINEAR",
+    "PRESSURE_RANGE",
     "WARMUP",
     "FitResult",
     "Polish",
     "Swarm",
     "default_warmup",
     "fit",
+    "first_fit_bounds",
+    "first_fit_parameters",
     "fit_many",
+    "fit_recording",
     "fitted_area",
     "search_range",
 ]

@@ -182,6 +182,7 @@ def fit_many(
     hold: Sequence[Sequence[str]] | None = None,
     progress: bool | None = None,
     callback: Callable[[int, float], None] | None = None,
+    restarts: int = 1,
     min_batch: int = 1,
 ) -> list[FitResult]:
     """Fit ``params`` of one model structure to many recordings as one batched job.
@@ -191,7 +192,8 @@ def fit_many(
     frame rate and f0: they are padded to the longest one's length bucket. ``model`` is one
     model for all, or one model per recording (of one structure: the same terms; e.g.
     several starting points for one recording). Fit i's result depends only on its model,
-    recording, hold and key ``jax.random.fold_in(key, i)``, not on the rest of the batch.
+    recording, hold, restarts and key ``jax.random.fold_in(key, i)``, not on the rest of the
+    batch.
 
     Arguments:
         model: the starting model(s), with every non-fitted parameter set (e.g.
@@ -217,6 +219,10 @@ def fit_many(
         progress: show a progress bar (default: on a terminal, for more than 20 iterations).
         callback: called as ``callback(iteration, best_nmse)`` after each compiled chunk of
             swarm iterations and after the polish (best NMSE over the batch).
+        restarts: independent searches (swarm and polish) per recording, all in the batch;
+            each recording keeps its best (`FitResult.restart_nmse` lists them all).
+            Restart 0 of fit i uses the key ``fold_in(key, i)``, restart r > 0
+            ``fold_in(fold_in(key, i), r)``.
         min_batch: pad the batch to at least this many fits (skipped; they cost no
             simulation), so that jobs of different sizes up to it share their programs.
 
@@ -241,6 +247,8 @@ def fit_many(
     if len(hold) != len(models):
         raise ValueError(f"got {len(hold)} hold lists for {len(recordings)} recordings")
     key = jax.random.key(0) if key is None else key
+    if isinstance(restarts, bool) or not isinstance(restarts, int) or restarts < 1:
+        raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
     warmup = max(default_warmup(m) for m in models) if warmup is None else float(warmup)
 
     for r in recordings:
@@ -257,16 +265,22 @@ def fit_many(
         raise ValueError("fit_many: S is fitted for pixel recordings only; do not mix units")
     linear = _common_coordinates([p for p, _, _ in prepared])
     problems = [dataclasses.replace(p, linear=linear) for p, _, _ in prepared]
+    # restarts: fit i's restarts follow each other in the batch (i * restarts + r)
+    owner = np.repeat(np.arange(len(problems)), restarts)
+    problems = [problems[i] for i in owner]
+    boxes = [(prepared[i][1], prepared[i][2]) for i in owner]
     # the batch is padded to a power of two with copies of fit 0 that are skipped, so that
     # batches of similar sizes share their programs
     n_fits = len(problems)
     pad = batch_bucket(max(n_fits, int(min_batch))) - n_fits
     batch = jax.tree.map(_stack_strong, *problems, *problems[:1] * pad)
     active = jnp.arange(n_fits + pad) < n_fits
-    lowers = jnp.stack([lo for _, lo, _ in prepared] + [prepared[0][1]] * pad)
-    uppers = jnp.stack([hi for _, _, hi in prepared] + [prepared[0][2]] * pad)
-    # fit i's key depends on i alone, not on the batch's size
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n_fits + pad))
+    lowers = jnp.stack([lo for lo, _ in boxes] + [boxes[0][0]] * pad)
+    uppers = jnp.stack([hi for _, hi in boxes] + [boxes[0][1]] * pad)
+    # fit i's keys depend on i (and the restart) alone, not on the batch's size
+    keys = [jax.random.fold_in(key, i) for i in range(len(recordings))]
+    keys = [k if r == 0 else jax.random.fold_in(k, r) for k in keys for r in range(restarts)]
+    keys = jnp.stack(keys + [keys[0]] * pad)
     program = swarm.program()
 
     show = progress if progress is not None else (swarm.iterations > 20 and sys.stderr.isatty())
@@ -308,7 +322,7 @@ def fit_many(
     if polish is not None:
         y, cost, steps, codes = _polish_batch(batch, active, y0, c0, polish)
         y, cost, steps = np.asarray(y), np.asarray(cost), np.asarray(steps)
-        names = [_result_name(codes, i) for i in range(len(problems))]
+        names = [_result_name(codes, j) for j in range(len(problems))]
     else:
         y, cost, steps = np.asarray(y0), c0, np.zeros(len(problems), int)
         names = ["not run"] * len(problems)
@@ -329,36 +343,39 @@ def fit_many(
         "batch_size": len(recordings),
     }
     results = []
-    for i, (rec, problem, (lo, hi)) in enumerate(
-        zip(recordings, problems, ((p[1], p[2]) for p in prepared))
-    ):
-        fitted, shift = problem.unpack(jnp.asarray(y[i]))
+    for i, rec in enumerate(recordings):
+        runs = np.flatnonzero(owner == i)
+        j = int(runs[np.argmin(np.where(np.isfinite(cost[runs]), cost[runs], np.inf))])
+        problem, (lo, hi) = problems[j], boxes[j]
+        fitted, shift = problem.unpack(jnp.asarray(y[j]))
         fitted_names = tuple(n for n in params if n not in hold[i])
         values = fitted.params()
         box = {n: b for n, b in bounds_in_units(problem, lo, hi).items() if n in fitted_names}
         floors = dict(zip(problem.names, np.asarray(problem.floor)))
-        status, of_mean = fit_status(rec.area, float(cost[i]), values, box, floors)
+        status, of_mean = fit_status(rec.area, float(cost[j]), values, box, floors)
         units = fitted.parameter_units()
-        n_sims = swarm.size * (1 + swarm.iterations) + int(steps[i]) * (1 + y.shape[1]) + 1
+        per_run = swarm.size * (1 + swarm.iterations) + 1
+        n_sims = sum(per_run + int(steps[r]) * (1 + y.shape[1]) for r in runs)
         results.append(
             FitResult(
                 params={n: float(values[n]) for n in fitted_names},
                 units={n: units[n] for n in fitted_names},
                 time_shift=shift,
-                nmse=float(cost[i]),
+                nmse=float(cost[j]),
                 sampling=samplings[i][0],
                 bounds=box,
                 swarm=swarm,
-                pso_trace=pso_traces[i].tolist(),
-                lm_trace=[float(c0[i]), float(cost[i])],
+                pso_trace=pso_traces[j].tolist(),
+                lm_trace=[float(c0[j]), float(cost[j])],
                 timings=timings,
                 trace_times=list(times),
                 n_simulations=n_sims,
-                optimistix_result=names[i],
+                optimistix_result=names[j],
                 model=fitted,
                 recording_name=rec.name,
                 status=status,
                 nmse_of_mean=of_mean,
+                restart_nmse=[float(cost[r]) if np.isfinite(cost[r]) else None for r in runs],
             )
         )
     return results

@@ -204,7 +204,12 @@ def program_size(sampling: Sampling) -> tuple[int, int, int]:
     return n_out, n_rows, shifts
 
 
-def _is_linear(model, name, ref):
+def _is_linear(model, name, ref, bounds=None):
+    """Whether ``name`` is searched in linear coordinates: an effect's parameter with a
+    default range (`LINEAR`), one that starts at 0, or one whose given box starts at 0 or
+    below (a closure duration searched from no hold at all); else in log coordinates."""
+    if bounds and name in bounds and bounds[name][0] <= 0:
+        return True
     ranged = search_range(model, name) is not None
     return ranged and (ref == 0.0 or name not in ("t_c", "C_min")) or ref == 0.0
 
@@ -214,7 +219,7 @@ def _bounds(names, model, bounds):
     lo, hi = [], []
     for n in names:
         ref = float(params[n])
-        if _is_linear(model, n, ref):
+        if _is_linear(model, n, ref, bounds):
             a, b, scale = search_range(model, n) or (0.0, 1.0, 0.1)
             # a warm start may sit outside a term's default range (a phase past pi after a
             # polish): the default range then widens to include it; a user's bounds do not
@@ -330,7 +335,7 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
         period=jnp.asarray(period),
         s_bounds=jnp.asarray(s_bounds),
         names=names,
-        linear=tuple(_is_linear(model, n, float(model.params()[n])) for n in names),
+        linear=tuple(_is_linear(model, n, float(model.params()[n]), bounds) for n in names),
         fit_s=fit_s,
         n_out=n_out,
         n_rows=n_rows,

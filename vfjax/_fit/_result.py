@@ -54,6 +54,9 @@ class FitResult:
             (read from a file of an earlier format).
         nmse_of_mean: NMSE of the recording's mean as a constant waveform: the error of a
             model that explains nothing, which a fit must beat.
+        restart_nmse: the NMSE each independent restart of the fit ended at (``restarts``
+            of `vfjax.fit`); the fit is the best of them. Close values say the search is
+            reproducible; a spread says the landscape has several basins.
     """
 
     params: dict
@@ -73,6 +76,7 @@ class FitResult:
     recording_name: str = ""
     status: str = "successful"
     nmse_of_mean: float | None = None
+    restart_nmse: list | None = None
 
     @property
     def failed(self) -> bool:
