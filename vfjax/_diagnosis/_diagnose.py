@@ -56,8 +56,8 @@ def diagnose(
     comparison = compare(result, recording)
     scores = score_tests(result, recording, cands, variance=criteria.variance)
     by_name = {s.effect: s for s in scores}
-    level = criteria.alpha / len(cands)
-    refits, control, reference = {}, None, result.nmse
+    level = criteria.level(len(cands))
+    refits, control, reference, noise_nmse = {}, None, result.nmse, None
     bandwidth = period_frames(recording)
     sse_scale = float(np.sum(np.square(recording.area)))
     if plan is not None:
@@ -73,15 +73,21 @@ def diagnose(
         )
         # the confirming refit serves the effect to add; when the error is within
         # ``noise_multiple`` noise floors, no effect can be needed and it is skipped
-        quick_floor = _noise_nmse(recording, [result, control, *fitted_each], sse_scale)
+        noise_nmse = _noise_nmse(recording, [result, control, *fitted_each], sse_scale)
         reference = min(result.nmse, control.nmse)
-        if (
-            plan.confirm_iterations is not None
-            and reference > criteria.noise_multiple * quick_floor
-        ):
+        if plan.confirm_iterations is not None and reference > criteria.noise_multiple * noise_nmse:
             control, fitted_each = confirm(
-                result, recording, jobs, control, fitted_each, plan, criteria, anchor, cands
+                result,
+                recording,
+                jobs,
+                control,
+                fitted_each,
+                plan=plan,
+                criteria=criteria,
+                anchor=anchor,
+                family=cands,
             )
+            noise_nmse = None  # from the confirmed fits, below
         reference = min(result.nmse, control.nmse)
         if progress:
             print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
@@ -106,8 +112,9 @@ def diagnose(
         ranking = sorted(by_name, key=lambda n: (refits[n].nmse, by_name[n].p_value))
     else:
         ranking = sorted(by_name, key=lambda n: (by_name[n].p_value, -by_name[n].statistic))
-    fits = [result] + ([control] if control else []) + [f.result for f in refits.values()]
-    noise_nmse = _noise_nmse(recording, fits, sse_scale)
+    if noise_nmse is None:
+        fits = [result] + ([control] if control else []) + [f.result for f in refits.values()]
+        noise_nmse = _noise_nmse(recording, fits, sse_scale)
 
     def is_needed(n):
         if evidence(by_name[n], refits.get(n)) >= level:

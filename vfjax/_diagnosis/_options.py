@@ -23,6 +23,10 @@ class Criteria(eqx.Module):
     noise_multiple: float = eqx.field(default=3.0, converter=float)
     variance: str = "hac"
 
+    def level(self, n_candidates: int) -> float:
+        """The significance level of each of ``n_candidates`` candidates (Bonferroni)."""
+        return self.alpha / max(int(n_candidates), 1)
+
     def __check_init__(self):
         if not 0 < self.alpha < 1:
             raise ValueError(f"Criteria: alpha must lie in (0, 1), got {self.alpha}")

@@ -213,7 +213,7 @@ def anchor_values(result: FitResult, recording: Recording) -> dict:
     return {n: float(start[n]) for n in result.params if n in start}
 
 
-def confirm(result, recording, jobs, control, fitted, plan, criteria, anchor, family):
+def confirm(result, recording, jobs, control, fitted, *, plan, criteria, anchor, family):
     """Refit the leading candidate (the lowest quick-refit error) and the control again with
     a larger search (`RefitPlan.confirm_search`: more swarms and iterations), from their
     quick refits and from the jobs' anchored starts; keep each one's better fit. The control

@@ -73,7 +73,7 @@ class Diagnosis:
     @property
     def level(self) -> float:
         """The significance level of each candidate: ``criteria.alpha`` over their number."""
-        return self.criteria.alpha / max(len(self.scores), 1)
+        return self.criteria.level(len(self.scores))
 
     @property
     def nmse_before(self) -> float:
