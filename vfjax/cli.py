@@ -5,7 +5,9 @@ import argparse
 import dataclasses
 import os
 import pathlib
+import signal
 import sys
+import threading
 import time
 
 import numpy as np
@@ -502,6 +504,44 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: Seconds a Ctrl-C may take to unwind the stack (the staged outputs' clean-up) before the
+#: process removes them itself and exits.
+INTERRUPT_GRACE_S = 3.0
+
+
+def _exit_interrupted(outputs) -> None:
+    """Exit with code 130 and one line on stderr, without a traceback and without the
+    interpreter's teardown under JAX's threads (which can crash); removes this process's
+    staged outputs beside each of ``outputs`` (paths) first."""
+    from .io import remove_partials
+
+    for path in outputs:
+        remove_partials(pathlib.Path(path).absolute().parent)
+    print("vfjax: interrupted; the output folder is left as it was", file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(130)
+
+
+def _interrupt_handler(outputs):
+    """A SIGINT handler: the first Ctrl-C raises KeyboardInterrupt (the outputs' context
+    managers clean up as the stack unwinds) and arms a timer that ends the process after
+    `INTERRUPT_GRACE_S` if it is still running (a KeyboardInterrupt raised inside a
+    finaliser or a library's callback is lost); a second Ctrl-C ends it at once."""
+    pressed = []
+
+    def handler(signum, frame):
+        if pressed:
+            _exit_interrupted(outputs)
+        pressed.append(signum)
+        timer = threading.Timer(INTERRUPT_GRACE_S, _exit_interrupted, args=(outputs,))
+        timer.daemon = True
+        timer.start()
+        raise KeyboardInterrupt
+
+    return handler
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit code: 0 done, 1 the fit or simulation failed
     (the reason on stderr), 2 bad input or arguments, 130 interrupted (Ctrl-C)."""
@@ -516,20 +556,23 @@ def main(argv=None) -> int:
     except ValueError as err:
         print(f"vfjax: error: --cores / VFJAX_CORES: {err}", file=sys.stderr)
         return 2
+    outputs = [p for p in (getattr(args, n, None) for n in ("out", "output")) if p]
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, _interrupt_handler(outputs))
     try:
         return args.func(args)
     except KeyboardInterrupt:
-        # no traceback, and no interpreter teardown under JAX's threads (which can crash)
-        print("vfjax: interrupted; the output folder is left as it was", file=sys.stderr)
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(130)
+        _exit_interrupted([])
     except SimulationError as err:
         print(f"vfjax: simulation failed: {err}", file=sys.stderr)
         return 1
     except (ValueError, TypeError, OSError) as err:
         print(f"vfjax: error: {err}", file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ def atomic_path(path):
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.stem}.", suffix=f".partial{path.suffix}", dir=path.parent
+        prefix=f".{path.stem}.{os.getpid()}.", suffix=f".partial{path.suffix}", dir=path.parent
     )
     os.close(fd)
     tmp = pathlib.Path(tmp)
@@ -36,6 +36,21 @@ def atomic_path(path):
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def remove_partials(folder, pid: int | None = None) -> None:
+    """Remove the staging folders and temporary files that process ``pid`` (default: this
+    one) left in ``folder`` (`staged_output`, `atomic_path`): for an exit that cannot unwind
+    the stack (a second Ctrl-C, or one that a library swallowed)."""
+    pid = os.getpid() if pid is None else pid
+    folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        return
+    for entry in folder.glob(f".*.partial-{pid}-*"):
+        shutil.rmtree(entry, ignore_errors=True)
+    for entry in folder.glob(f".*.{pid}.*.partial*"):
+        if entry.is_file():
+            entry.unlink(missing_ok=True)
 
 
 def write_text(path, text: str) -> pathlib.Path:
@@ -93,7 +108,9 @@ def staged_output(folder, force: bool = False):
     """
     folder = check_output_folder(folder, force)
     folder.parent.mkdir(parents=True, exist_ok=True)
-    stage = pathlib.Path(tempfile.mkdtemp(prefix=f".{folder.name}.partial-", dir=folder.parent))
+    stage = pathlib.Path(
+        tempfile.mkdtemp(prefix=f".{folder.name}.partial-{os.getpid()}-", dir=folder.parent)
+    )
     try:
         yield stage
         folder.mkdir(exist_ok=True)
