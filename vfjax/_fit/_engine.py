@@ -390,8 +390,9 @@ def fit(
     """Fit ``params`` of ``model`` to ``recording``: a particle swarm, then a polish.
 
     `fit_many` of one recording: the same options (``bounds``, ``swarm``, ``polish``,
-    ``warmup``, ``substeps``, ``key``, ``progress``, ``callback``) and the same compiled
-    programs; see there.
+    ``warmup``, ``substeps``, ``key``, ``progress``, ``callback``, ``restarts``) and the same
+    compiled programs; see there. `vfjax.fit_recording` is a recording's first fit (P_s
+    searched, a wider box, restarts).
     """
     for name in ("hold", "min_batch"):
         if name in options:
