@@ -5,7 +5,7 @@ import numpy as np
 from ._fit import default_warmup
 from .descriptors import fundamental_frequency
 from .integrator import simulate
-from .presets import preset
+from .presets import PRESSURE_KEY, preset
 from .recording import Recording
 from .terms.variability import ClosureJitter
 
@@ -53,7 +53,7 @@ def demo_recording(
     area = np.clip(np.round(area), 0.0, None)
     meta = {
         "sex": "male" if name in ("N1", "N2") else "female",
-        "subglottal_pressure_dyne_per_cm2": float(model.params()["P_s"]),
+        PRESSURE_KEY: float(model.params()["P_s"]),
         "source": "vfjax demo",
         "subject": name,
         "noise_px": noise_px,

@@ -50,6 +50,10 @@ PRESETS: dict[str, dict] = {
     ),
 }
 
+#: The sidecar key of a measured subglottal pressure (dyne/cm²): the model takes it, and a
+#: first fit (`vfjax.fit_recording`) does not search it.
+PRESSURE_KEY = "subglottal_pressure_dyne_per_cm2"
+
 #: The paper's reported normalised errors (%) for N1-N4 (Table 4), for reference only.
 PAPER_NORMALISED_ERROR_PERCENT = {"N1": 1.8685, "N2": 1.9959, "N3": 2.1039, "N4": 2.8136}
 
@@ -119,8 +123,8 @@ def initial_model(recording: Recording, template: str | None = None) -> VocalFol
         model = model.set(l=recording.metadata["vocal_fold_length_cm"])
     if "vocal_fold_mass_g" in recording.metadata:
         model = model.set(M=recording.metadata["vocal_fold_mass_g"])
-    if "subglottal_pressure_dyne_per_cm2" in recording.metadata:
-        model = model.set(P_s=recording.metadata["subglottal_pressure_dyne_per_cm2"])
+    if PRESSURE_KEY in recording.metadata:
+        model = model.set(P_s=recording.metadata[PRESSURE_KEY])
     t_c = estimate_closure_duration(recording)
     if t_c is not None and model.closure_duration is not None:
         model = model.set(t_c=t_c)

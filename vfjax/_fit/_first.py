@@ -11,7 +11,7 @@ recordings, the first fit's NMSE falls by up to 10x when P_s is searched with th
 from collections.abc import Sequence
 
 from ..model import VocalFoldModel
-from ..presets import initial_model
+from ..presets import PRESSURE_KEY, initial_model
 from ..recording import Recording
 from ._engine import fit
 from ._result import FitResult
@@ -37,7 +37,7 @@ def first_fit_parameters(recording: Recording, model: VocalFoldModel) -> tuple[s
     names += ["K", "C_f"]
     if model.closure_duration is not None:
         names.append("t_c")
-    if "subglottal_pressure_dyne_per_cm2" not in recording.metadata:
+    if PRESSURE_KEY not in recording.metadata:
         names.append("P_s")
     return tuple(names)
 
