@@ -25,14 +25,7 @@ from vfjax import (
     PressureModulation,
     search_range,
 )
-from vfjax._diagnosis._score import (
-    _candidate_columns,
-    _effect_columns,
-    _estimate,
-    _hac,
-    _sampler,
-    _stack,
-)
+from vfjax._diagnosis._score import _estimate, _hac, sensitivities
 from vfjax.datasets import demo_recording
 from vfjax.diagnosis import Candidate, default_candidates, effective_frames
 
@@ -67,10 +60,7 @@ def test_gap_sensitivity_is_the_camera_scale(shared_dir):
     result = vfjax.fit(
         vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
     )
-    model = result.model.with_term(GlottalGap())
-    shift = jnp.asarray(result.time_shift)
-    cols = _effect_columns(_sampler(result), _stack([model]), ("a_gap",), jnp.zeros((1, 1)), shift)
-    cols = np.asarray(cols)[0, : rec.n_frames, 0]
+    cols = sensitivities(result, [Candidate.of(GlottalGap)])[2][0][0, :, 0]
     open_ = result.fitted_gaw(rec) > 0
     assert np.allclose(cols[open_], 100.0 * result.params["S"], rtol=1e-12)
 
@@ -83,11 +73,10 @@ def test_candidates_sensitivities_from_one_extended_model():
         vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
     )
     cands = [Candidate.of(k) for k in (GlottalGap, PressureModulation, MucosalDelay)]
-    sampler = _sampler(result)
-    together = _candidate_columns(result, sampler, cands)
+    together = sensitivities(result, cands)[2]
     assert [c.shape for c in together] == [(1, 201, 1), (38, 201, 1), (1, 201, 1)]
     for cand, cols in list(zip(cands, together))[1:]:
-        alone = _candidate_columns(result, sampler, [cand])[0]
+        alone = sensitivities(result, [cand])[2][0]
         scale = np.abs(alone).max()
         assert scale > 0
         np.testing.assert_allclose(cols, alone, rtol=0, atol=1e-8 * scale, err_msg=cand.name)

@@ -131,6 +131,10 @@ def initial_model(recording: Recording, template: str | None = None) -> VocalFol
     return match_fundamental_frequency(model, recording)
 
 
+#: The shortest simulated motion whose f0 `match_fundamental_frequency` measures (s).
+F0_WINDOW_S = 0.05
+
+
 def match_fundamental_frequency(model: VocalFoldModel, recording: Recording, steps: int = 4):
     """``model`` with K scaled so that its f0 matches the recording's (secant steps in log K
     against log f0). A start at the right f0 keeps the swarm away from the sub-harmonic
@@ -138,9 +142,12 @@ def match_fundamental_frequency(model: VocalFoldModel, recording: Recording, ste
     target = fundamental_frequency(recording.area, recording.fps)
     if not np.isfinite(target):
         return model
-    n = max(recording.n_frames, int(0.08 * recording.fps))
-
-    sampling = Sampling(recording.fps, n, warmup=0.02)
+    # at least F0_WINDOW_S of motion, in frame counts that do not follow the frame rate (a
+    # new frame rate reuses the program): 512 frames, doubled while too short
+    n = 512
+    while n < F0_WINDOW_S * recording.fps:
+        n *= 2
+    sampling = Sampling(recording.fps, max(n, recording.n_frames), warmup=0.02)
 
     def f0_of(k):  # one compiled program per length bucket, whatever the frame rate
         sim = fitted_simulation(model.set(K=k), sampling)

@@ -3,6 +3,7 @@
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -14,7 +15,7 @@ from .._fit import FitResult
 from ..descriptors import fundamental_frequency
 from ..integrator import SampledGrid, sampled_grid, simulate_frames, window_size
 from ..recording import Recording
-from ._candidates import as_candidates, extended
+from ._candidates import Candidate, as_candidates, extended
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,8 +74,11 @@ def _sampler(result: FitResult) -> _Sampler:
 
 
 @eqx.filter_jit
-def _fitted_columns(sampler, model, names, shift):
-    """The GAW and its derivatives: d/dlog(p) (d/dp where p = 0) and d/d(shift)."""
+def _columns(sampler, model, names, shift, variants, tested, points):
+    """The fitted GAW, its derivatives d/dlog(p) of the fitted parameters ``names`` (d/dp
+    where p = 0) and d/d(shift), and, for each of the models ``variants`` (stacked), the
+    derivatives d GAW / d(``tested``) at its row of ``points``. One program for the whole
+    score test."""
     values = jnp.stack([model.params()[n] for n in names])
     scale = jnp.where(values != 0.0, values, 1.0)
 
@@ -82,21 +86,15 @@ def _fitted_columns(sampler, model, names, shift):
         return sampler.gaw(model.set(**{n: p[i] for i, n in enumerate(names)}), t)
 
     jp, jt = jax.jacfwd(g, argnums=(0, 1))(values, shift)
-    return g(values, shift), jnp.concatenate([jp * scale, jt[:, None]], axis=1)
 
+    def one(variant, point):
+        def ge(p):
+            return sampler.gaw(variant.set(**{n: p[i] for i, n in enumerate(tested)}), shift)
 
-@eqx.filter_jit
-def _effect_columns(sampler, models, names, points, shift):
-    """d GAW / d(tested parameters ``names``) for a batch of models, each at its row of
-    ``points``."""
+        return jax.jacfwd(ge)(point)
 
-    def one(model, point):
-        def g(p):
-            return sampler.gaw(model.set(**{n: p[i] for i, n in enumerate(names)}), shift)
-
-        return jax.jacfwd(g)(point)
-
-    return jax.vmap(one)(models, points)
+    effects = jax.vmap(one)(variants, points)
+    return g(values, shift), jnp.concatenate([jp * scale, jt[:, None]], axis=1), effects
 
 
 def _stack(models):
@@ -148,32 +146,64 @@ def score_tests(
     if variance not in ("hac", "iid"):
         raise ValueError(f"variance must be 'hac' or 'iid', got {variance!r}")
     cands = as_candidates(result.model, candidates)
-    sampler = _sampler(result)
-    names = tuple(result.params)
-    g0, jf = (
-        np.asarray(a)[: recording.n_frames]
-        for a in _fitted_columns(sampler, result.model, names, jnp.asarray(result.time_shift))
-    )
+    g0, jf, columns = sensitivities(result, cands)
     r = np.asarray(recording.area, dtype=float) - g0
     q, _ = np.linalg.qr(jf)
     bandwidth = period_frames(recording)
-    columns = _candidate_columns(result, sampler, cands)
     return [
         _candidate_score(c, cols, r, q, jf.shape[1], variance, bandwidth)
         for c, cols in zip(cands, columns)
     ]
 
 
-def _candidate_columns(result, sampler, cands) -> list[np.ndarray]:
-    """Each candidate's GAW sensitivities, (settings, frames, tested), one setting per
-    grid point and direction (`Candidate.grid`, `Candidate.directions`).
+def sensitivities(result: FitResult, cands: Sequence[Candidate]):
+    """The fitted GAW (frames,), its derivatives in the fitted parameters and the time shift
+    (frames, fitted + 1) and each candidate's derivatives (settings, frames, tested), one
+    setting per grid point and direction, over the recording's frames.
+
+    One compiled program (`_columns`) serves them all, through the fitted model extended by
+    every candidate (`_candidate_jobs`); candidates whose parameter names clash run one
+    program call each."""
+    n = result.sampling.n_frames
+    groups = [list(cands)] if extended(result.model, cands) is not None else [[c] for c in cands]
+    columns = []
+    for group in groups:
+        jobs = _candidate_jobs(result.model, group)
+        g0, jf, cols = (
+            np.asarray(a)[..., :n, :] if a.ndim > 1 else np.asarray(a)[:n]
+            for a in _columns(
+                _sampler(result),
+                result.model,
+                tuple(result.params),
+                jnp.asarray(result.time_shift),
+                _stack(jobs.variants),
+                jobs.tested,
+                jnp.asarray(jobs.points),
+            )
+        )
+        columns += [
+            cols[rows][:, :, [jobs.tested.index(t) for t in c.tested]]
+            for c, rows in zip(group, jobs.rows)
+        ]
+    return g0, jf, columns
+
+
+class _Jobs(NamedTuple):
+    variants: list  # models, one per candidate and setting
+    tested: tuple  # the tested parameters of all candidates
+    points: list  # per variant, the values of ``tested`` where the derivatives are taken
+    rows: list  # per candidate, its variants (a slice)
+
+
+def _candidate_jobs(model, cands) -> _Jobs:
+    """Each candidate's sensitivity jobs: one variant of the model per grid point and
+    direction (`Candidate.grid`, `Candidate.directions`).
 
     One compiled program serves all candidates: the fitted model extended by all of them,
     in one variant per candidate and setting, where that candidate sits at its setting and
-    score point and the others at their off-values (where they change nothing)."""
-    wide = extended(result.model, cands)
-    if wide is None:
-        return [_candidate_columns(result, sampler, [c])[0] for c in cands]
+    score point and the others at their off-values (where they change nothing). The
+    candidates' parameter names must not clash (`extended`)."""
+    wide = extended(model, cands)
     tested = tuple(dict.fromkeys(n for c in cands for n in c.tested))
     off = {n: float(type(c.term).off_values[n]) for c in cands for n in c.tested}
     variants, points, rows = [], [], []
@@ -183,13 +213,7 @@ def _candidate_columns(result, sampler, cands) -> list[np.ndarray]:
         rows.append(slice(len(variants), len(variants) + len(settings)))
         variants += [wide.set(**setting) for setting in settings]
         points += [[at[n] for n in tested]] * len(settings)
-    cols = np.asarray(
-        _effect_columns(
-            sampler, _stack(variants), tested, jnp.asarray(points), jnp.asarray(result.time_shift)
-        )
-    )
-    cols = cols[:, : result.sampling.n_frames]
-    return [cols[r][:, :, [tested.index(n) for n in c.tested]] for c, r in zip(cands, rows)]
+    return _Jobs(variants, tested, points, rows)
 
 
 def period_frames(recording) -> int:

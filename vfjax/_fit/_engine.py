@@ -34,7 +34,7 @@ from ._options import Polish, Swarm
 from ._polish import polish as _polish_one
 from ._problem import bounds_in_units, default_warmup, fit_sampling, prepare, program_size
 from ._result import FitResult, fit_status
-from ._swarm import at_rest, run_chunk, scatter
+from ._swarm import run_chunk, scatter, unvisited
 
 #: The parameters a fit adjusts by default: the paper's S, K and C_f.
 DEFAULT_PARAMS = ("S", "K", "C_f")
@@ -67,11 +67,13 @@ def _swarm_costs(batch, active, positions, mesh):
 
 
 @eqx.filter_jit
-def _swarm_start(batch, active, lowers, uppers, keys, swarm: Swarm, mesh):
+def _swarm_start(lowers, uppers, keys, swarm: Swarm):
+    """Every fit's swarm scattered over its box, particle 0 at the starting model, at rest
+    and not yet evaluated (no simulation: the first chunk evaluates them)."""
     positions, keys = jax.vmap(lambda lo, hi, k: scatter(lo, hi, swarm.size, k, 0 * lo))(
         lowers, uppers, keys
     )
-    return jax.vmap(at_rest)(positions, _swarm_costs(batch, active, positions, mesh), keys)
+    return jax.vmap(unvisited)(positions, keys)
 
 
 @eqx.filter_jit
@@ -79,7 +81,19 @@ def _swarm_chunk(batch, active, lowers, uppers, states, live, swarm: Swarm, mesh
     def costs(x):
         return _swarm_costs(batch, active, x, mesh)
 
-    return run_chunk(costs, lowers, uppers, swarm, states, live)
+    states, costs = run_chunk(costs, lowers, uppers, swarm, states, live)
+    return _replicated(states, mesh), costs
+
+
+def _replicated(tree, mesh):
+    """``tree`` held whole by every device of ``mesh`` (unchanged without a mesh): the swarm
+    states enter and leave every chunk alike, so that one program serves every chunk."""
+    if mesh is None:
+        return tree
+    whole = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree)):
+        return jax.lax.with_sharding_constraint(tree, whole)
+    return jax.device_put(tree, whole)
 
 
 def _stack_strong(*xs):
@@ -92,8 +106,10 @@ def _stack_strong(*xs):
 
 def batch_bucket(n_fits: int) -> int:
     """The number of fits a batch of ``n_fits`` is padded to in the compiled programs: the
-    next power of two. The padding fits are skipped (they cost no simulation)."""
-    return 1 << max(int(n_fits) - 1, 0).bit_length()
+    next power of two, at least 2 (XLA compiles a loop of one trip, such as a lone fit's
+    `lax.map`, into other code, which rounds differently). The padding fits are skipped
+    (they cost no simulation)."""
+    return 1 << max(int(n_fits) - 1, 1).bit_length()
 
 
 def _particle_mesh(swarm: Swarm):
@@ -111,29 +127,30 @@ def _particle_mesh(swarm: Swarm):
 # computes alone (a vmapped batch rounds differently from a batch of one). Padding fits
 # (``active`` False) are skipped.
 @eqx.filter_jit
-def _polish_start(batch, active, positions):
+def _polish_batch(batch, active, positions, polish: Polish | None):
+    """Each fit's polish from its swarm's best ``positions``: the start's coordinates and
+    NMSE, then (``polish`` not None) the solver's best point, its NMSE, steps and result."""
+
     def one(args):
         p, live, z = args
-        y, cost = jax.eval_shape(p.start, z)
-        skip = (jnp.zeros(y.shape, y.dtype), jnp.full(cost.shape, jnp.inf, cost.dtype))
-        return jax.lax.cond(live, lambda: p.start(z), lambda: skip)
-
-    return jax.lax.map(one, (batch, active, positions))
-
-
-@eqx.filter_jit
-def _polish_batch(batch, active, y0, cost0, polish: Polish):
-    def one(args):
-        p, live, y, c = args
 
         def solve():
-            return _polish_one(p, y, c, polish)
+            y, cost = p.start(z)
+            if polish is None:
+                return y, cost
+            return (y, cost, *_polish_one(p, y, cost, polish))
 
-        # skipped: the start kept, no steps, result code 0 ("successful")
-        zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(solve))
-        return jax.lax.cond(live, solve, lambda: (y, c, *zeros[2:]))
+        # skipped: zero coordinates, infinite costs (entries 1 and 3), no steps, result
+        # code 0 ("successful")
+        skip = tuple(
+            jax.tree.map(
+                lambda x, i=i: jnp.full(x.shape, jnp.inf if i in (1, 3) else 0, x.dtype), a
+            )
+            for i, a in enumerate(jax.eval_shape(solve))
+        )
+        return jax.lax.cond(live, solve, lambda: skip)
 
-    return jax.lax.map(one, (batch, active, y0, cost0))
+    return jax.lax.map(one, (batch, active, positions))
 
 
 def _result_name(result, index) -> str:
@@ -289,17 +306,18 @@ def fit_many(
         from tqdm.auto import tqdm
 
         name = recordings[0].name if len(recordings) == 1 else f"{len(recordings)} recordings"
-        bar = tqdm(total=swarm.iterations + (1 if polish else 0), desc=f"fit {name}", leave=False)
+        bar = tqdm(
+            total=swarm.iterations + 1 + (1 if polish else 0), desc=f"fit {name}", leave=False
+        )
 
     # Stage 1: the swarm, in chunks.
     t0 = time.perf_counter()
     mesh = _particle_mesh(swarm)
-    states = _swarm_start(batch, active, lowers, uppers, keys, program, mesh)
-    traces = [np.asarray(states.global_cost)[:, None]]
-    times = [time.perf_counter() - t_all]
-    done = 0
-    while done < swarm.iterations:
-        live = min(swarm.chunk, swarm.iterations - done)
+    states = _replicated(_swarm_start(lowers, uppers, keys, program), mesh)
+    traces, times = [], [0.0]
+    done = 0  # evaluations: the initial positions, then one per iteration
+    while done < swarm.iterations + 1:
+        live = min(swarm.chunk, swarm.iterations + 1 - done)
         states, costs = _swarm_chunk(
             batch, active, lowers, uppers, states, jnp.asarray(live), program, mesh
         )
@@ -312,21 +330,21 @@ def fit_many(
             bar.update(live)
             bar.set_postfix(nmse=f"{best:.3g}")
         if callback is not None:
-            callback(done, best)
+            callback(done - 1, best)
+    times = times[1:]
     pso_traces = np.concatenate(traces, axis=1)
     t_pso = time.perf_counter() - t0
 
     # Stage 2: the polish, one compiled solve for the whole batch.
     t1 = time.perf_counter()
-    y0, c0 = _polish_start(batch, active, states.global_position)
+    polished = _polish_batch(batch, active, states.global_position, polish)
+    y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
-        y, cost, steps, codes = _polish_batch(batch, active, y0, c0, polish)
-        y, cost, steps = np.asarray(y), np.asarray(cost), np.asarray(steps)
-        names = [_result_name(codes, j) for j in range(len(problems))]
+        y, cost, steps = (np.asarray(a) for a in polished[2:5])
+        names = [_result_name(polished[5], j) for j in range(len(problems))]
     else:
-        y, cost, steps = np.asarray(y0), c0, np.zeros(len(problems), int)
+        y, cost, steps = y0, c0, np.zeros(len(problems), int)
         names = ["not run"] * len(problems)
-    c0 = np.asarray(c0)
     t_lm = time.perf_counter() - t1
     if bar is not None:
         bar.update(1 if polish else 0)

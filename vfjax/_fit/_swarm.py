@@ -1,7 +1,7 @@
 """Particle swarm optimisation of a batch of fits, every particle of every fit evaluated in
 one batched call per iteration.
 
-The per-swarm steps (`scatter`, `at_rest`, `move`, `settle`) act on one fit's swarm and are
+The per-swarm steps (`scatter`, `unvisited`, `settle`, `move`) act on one fit's swarm and are
 vmapped over the batch; between them one cost call maps the positions of all swarms,
 (fits, particles, dims), to their costs, so that a vmapped (and, on several devices,
 sharded) simulator evaluates them at once. Iterations run in compiled chunks of fixed length
@@ -50,17 +50,17 @@ def scatter(lower, upper, n_particles: int, key, start=None):
     return position, key
 
 
-def at_rest(position, cost, key) -> SwarmState:
-    """A swarm at ``position`` (n, d) whose particles have costs ``cost`` (n,), at rest."""
-    cost = _finite_or_inf(cost)
-    i = jnp.argmin(cost)
+def unvisited(position, key) -> SwarmState:
+    """A swarm about to evaluate ``position`` (n, d), at rest: no particle has a cost yet.
+    Its first iteration (`run_chunk`) evaluates the positions and makes them the bests."""
+    inf = jnp.full(position.shape[:1], jnp.inf, position.dtype)
     return SwarmState(
         position=position,
         velocity=jnp.zeros_like(position),
         best_position=position,
-        best_cost=cost,
-        global_position=position[i],
-        global_cost=cost[i],
+        best_cost=inf,
+        global_position=position[0],
+        global_cost=inf[0],
         key=key,
     )
 
@@ -85,27 +85,39 @@ def move(settings: Swarm, lower, upper, state: SwarmState):
     return jnp.clip(x, lower, upper), v, key
 
 
-def settle(state: SwarmState, x, v, cost, key) -> SwarmState:
-    """The swarm after a move to ``x`` (velocities ``v``) whose costs are ``cost``."""
+def settle(state: SwarmState, cost) -> SwarmState:
+    """The swarm once its positions are evaluated (costs ``cost``): personal and global
+    bests updated."""
     cost = _finite_or_inf(cost)
     better = cost < state.best_cost
-    best_position = jnp.where(better[:, None], x, state.best_position)
+    best_position = jnp.where(better[:, None], state.position, state.best_position)
     best_cost = jnp.where(better, cost, state.best_cost)
     i = jnp.argmin(best_cost)
-    return SwarmState(x, v, best_position, best_cost, best_position[i], best_cost[i], key)
+    return state._replace(
+        best_position=best_position,
+        best_cost=best_cost,
+        global_position=best_position[i],
+        global_cost=best_cost[i],
+    )
 
 
 def run_chunk(batch_cost: Callable, lowers, uppers, settings: Swarm, states, live):
     """``settings.chunk`` iterations of a batch of swarms in one `lax.scan`, of which the
-    first ``live`` (data) move the swarms and the rest leave them as they are.
+    first ``live`` (data) act and the rest leave the swarms as they are. An iteration
+    evaluates every particle's position, updates the bests and moves the particles; a swarm's
+    first iteration (from `unvisited`) evaluates its initial positions, so a search of N
+    iterations is N + 1 evaluations, the last move unused.
 
     ``batch_cost`` maps the positions of every swarm, (fits, n, d), to their costs in one
     call (one batched simulation of every particle of every fit). Returns the states and
     each swarm's best cost after each iteration, (fits, chunk)."""
 
     def body(s, k):
-        x, v, keys = jax.vmap(lambda lo, hi, st: move(settings, lo, hi, st))(lowers, uppers, s)
-        moved = jax.vmap(settle)(s, x, v, batch_cost(x), keys)
+        evaluated = jax.vmap(settle)(s, batch_cost(s.position))
+        x, v, keys = jax.vmap(lambda lo, hi, st: move(settings, lo, hi, st))(
+            lowers, uppers, evaluated
+        )
+        moved = evaluated._replace(position=x, velocity=v, key=keys)
         s = jax.tree.map(lambda a, b: jnp.where(k < live, a, b), moved, s)
         return s, s.global_cost
 
