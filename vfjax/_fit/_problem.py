@@ -154,9 +154,14 @@ class Problem(eqx.Module):
         fine = jnp.maximum(jnp.where(ok, fine, 0.0), 0.0)
         # shift j = q a + b reads the frames from parity[b][a:]: correlations over a
         parity = fine.reshape(-1, q).T
+        rows = parity.shape[1]
 
         def per_shift(signal, kernel):
-            out = jax.vmap(lambda p: jnp.correlate(p, kernel, mode="valid"))(signal)
+            # by FFT: a convolution whose kernel is batched (the measured GAW of each fit of
+            # a batch) is a grouped convolution, slow in XLA; rows >= a + k for every term
+            # of the valid correlation, so no product wraps around
+            spectrum = jnp.fft.rfft(signal, rows) * jnp.conj(jnp.fft.rfft(kernel, rows))
+            out = jnp.fft.irfft(spectrum, rows)[:, : rows - self.n_out + 1]
             return out.T.reshape(-1)[:n]
 
         mg = per_shift(parity, self.measured)
