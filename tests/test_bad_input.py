@@ -29,7 +29,10 @@ FPS = 4000.0
 
 
 def _cli(*args, cwd, timeout=300, **env_vars):
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "VFJAX_NO_CACHE": "1", **env_vars}
+    """The command line in a new process, with the test session's compilation cache."""
+    env = {k: v for k, v in os.environ.items() if k != "VFJAX_NO_CACHE"}
+    cache = os.environ["VFJAX_TEST_SESSION_CACHE"]
+    env.update({"PYTHONUNBUFFERED": "1", "VFJAX_CACHE_DIR": cache, **env_vars})
     return subprocess.run(
         [sys.executable, "-m", "vfjax", *map(str, args)],
         cwd=cwd,

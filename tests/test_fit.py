@@ -233,11 +233,14 @@ def test_lm_linearisation_is_the_residuals_jacobian():
 
 
 def _compilations():
-    """A counter of XLA compilations, from JAX's monitoring events."""
+    """A counter of new programs, from JAX's monitoring events: each is lowered to MLIR,
+    then compiled or loaded from the persistent compilation cache."""
     seen = []
     jax.monitoring.register_event_duration_secs_listener(
         lambda event, duration, **kw: (
-            seen.append(event) if event == "/jax/core/compile/backend_compile_duration" else None
+            seen.append(event)
+            if event == "/jax/core/compile/jaxpr_to_mlir_module_duration"
+            else None
         )
     )
     return seen
@@ -254,7 +257,7 @@ def test_a_new_length_and_frame_rate_compile_nothing_new():
     second = Recording(area=np.clip(np.asarray(sim.area), 0, None), fps=6000.0, name="second")
     assert vfjax.length_bucket(first.n_frames) == vfjax.length_bucket(second.n_frames)
     fit(truth, first, swarm=swarm, polish=polish, progress=False)
-    vfjax.initial_model(first)  # its f0 matching simulates in the length bucket of 0.08 s
+    vfjax.initial_model(first)  # its f0 matching simulates 512 frames or more
     seen = _compilations()
     start = len(seen)
     vfjax.initial_model(second)
@@ -262,6 +265,8 @@ def test_a_new_length_and_frame_rate_compile_nothing_new():
     assert len(seen) == start, f"{len(seen) - start} new compilations"
     assert result.sampling.fps == 6000.0 and result.sampling.n_frames == 170
     assert np.isfinite(result.nmse)
+    jax.jit(lambda x: x * 3.0 + 1.0)(np.arange(3.0))  # the counter sees a new program
+    assert len(seen) == start + 1
 
 
 def test_a_fit_in_a_batch_equals_the_fit_alone():

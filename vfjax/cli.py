@@ -355,11 +355,17 @@ def cache_folder() -> pathlib.Path:
     return pathlib.Path(base) / "vfjax" / "jax"
 
 
+#: Most bytes the command line's compilation cache holds; past it the programs used least
+#: recently are removed. A bounded cache also makes JAX lock the folder for every read and
+#: write, so processes running side by side never read a program half written.
+CACHE_MAX_BYTES = 2 * 1024**3
+
+
 def use_compilation_cache(folder=None) -> pathlib.Path | None:
     """Turn on JAX's persistent compilation cache in ``folder`` (default `cache_folder`), so
     that a program compiled once (a fit of a model structure) is loaded, not compiled again,
-    by later processes. A folder that cannot be written leaves the cache off, with one
-    warning on stderr. Returns the folder in use, or None."""
+    by later processes, up to `CACHE_MAX_BYTES`. A folder that cannot be written leaves the
+    cache off, with one warning on stderr. Returns the folder in use, or None."""
     import tempfile
 
     import jax
@@ -377,6 +383,7 @@ def use_compilation_cache(folder=None) -> pathlib.Path | None:
         )
         return None
     jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
     return folder
 
@@ -550,6 +557,10 @@ def main(argv=None) -> int:
 
     if not (args.no_cache or os.environ.get("VFJAX_NO_CACHE")):
         use_compilation_cache()
+    else:  # also a cache that JAX's own settings (JAX_COMPILATION_CACHE_DIR) turn on
+        import jax
+
+        jax.config.update("jax_enable_compilation_cache", False)
     try:
         cores = args.cores if args.cores is not None else os.environ.get("VFJAX_CORES")
         use_cpu_cores(None if cores is None else int(cores))

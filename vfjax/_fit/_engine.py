@@ -1,12 +1,12 @@
 """The engine: every fit runs as a batch (recordings x starts) through compiled programs.
 
 Stage 1, global: a particle swarm (`Swarm`), every particle of every fit simulated in one
-call per iteration (the fits one after the other, each fit's particles vmapped; on several
-devices each device simulates its share of every swarm), in compiled chunks of iterations
-(progress is reported between chunks). Stage 2, local: one compiled program of
-`optimistix.least_squares` solves (`Polish`, by default Levenberg-Marquardt with the best
-point kept) from each fit's swarm optimum, the fits one after the other, with no host round
-trip per step.
+call per iteration (the particles of all fits side by side, `MAX_LANES` to a vmapped
+simulation; on several devices each device simulates its share of every swarm), in compiled
+chunks of iterations (progress is reported between chunks). Stage 2, local: one compiled
+program of `optimistix.least_squares` solves (`Polish`, by default Levenberg-Marquardt with
+the best point kept) from each fit's swarm optimum, the fits one after the other, with no
+host round trip per step.
 
 What decides the compiled programs: the model's structure (its terms), the fitted names, the
 batch size rounded up to a power of two (`batch_bucket`; the padding fits are skipped), the
