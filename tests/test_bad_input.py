@@ -290,9 +290,12 @@ def test_a_swallowed_interrupt_still_ends_the_run_and_its_staged_output(tmp_path
         signal.signal(signal.SIGINT, _interrupt_handler(["out"]))
         with staged_output("out") as stage:
             (stage / "half.txt").write_text("written")
-            print("ready", flush=True)
+            ready = False
             while True:
-                try:
+                try:  # "ready" inside the try: the interrupt cannot land before it
+                    if not ready:
+                        print("ready", flush=True)
+                        ready = True
                     time.sleep(0.05)
                 except KeyboardInterrupt:
                     pass  # swallowed
