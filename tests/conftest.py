@@ -8,7 +8,7 @@ import tempfile
 import pytest
 
 import vfjax  # noqa: F401  (enables float64 before any test builds arrays)
-from vfjax.cli import use_compilation_cache
+from vfjax.cli import CACHE_MAX_BYTES, CACHE_MIN_COMPILE_S, use_compilation_cache
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -27,8 +27,9 @@ def pytest_configure(config):
         config._vfjax_cache = folder
         os.environ[_CACHE_VARIABLE] = folder
         os.environ["JAX_COMPILATION_CACHE_DIR"] = folder
-        os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"] = str(4 * 1024**3)
-        os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.2"
+        # as `use_compilation_cache` sets them, for processes that do not call it
+        os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"] = str(CACHE_MAX_BYTES)
+        os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = str(CACHE_MIN_COMPILE_S)
     use_compilation_cache(os.environ[_CACHE_VARIABLE])
 
 

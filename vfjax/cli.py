@@ -359,6 +359,8 @@ def cache_folder() -> pathlib.Path:
 #: recently are removed. A bounded cache also makes JAX lock the folder for every read and
 #: write, so processes running side by side never read a program half written.
 CACHE_MAX_BYTES = 2 * 1024**3
+#: Programs that compile faster than this (s) are not cached (small array operations).
+CACHE_MIN_COMPILE_S = 0.2
 
 
 def use_compilation_cache(folder=None) -> pathlib.Path | None:
@@ -384,7 +386,7 @@ def use_compilation_cache(folder=None) -> pathlib.Path | None:
         return None
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", CACHE_MIN_COMPILE_S)
     return folder
 
 

@@ -165,10 +165,13 @@ def sensitivities(result: FitResult, cands: Sequence[Candidate]):
     every candidate (`_candidate_jobs`); candidates whose parameter names clash run one
     program call each."""
     n = result.sampling.n_frames
-    groups = [list(cands)] if extended(result.model, cands) is not None else [[c] for c in cands]
+    together = _candidate_jobs(result.model, cands)
+    if together is not None:
+        groups = [(list(cands), together)]
+    else:
+        groups = [([c], _candidate_jobs(result.model, [c])) for c in cands]
     columns = []
-    for group in groups:
-        jobs = _candidate_jobs(result.model, group)
+    for group, jobs in groups:
         g0, jf, cols = (
             np.asarray(a)[..., :n, :] if a.ndim > 1 else np.asarray(a)[:n]
             for a in _columns(
@@ -195,15 +198,17 @@ class _Jobs(NamedTuple):
     rows: list  # per candidate, its variants (a slice)
 
 
-def _candidate_jobs(model, cands) -> _Jobs:
+def _candidate_jobs(model, cands) -> _Jobs | None:
     """Each candidate's sensitivity jobs: one variant of the model per grid point and
     direction (`Candidate.grid`, `Candidate.directions`).
 
     One compiled program serves all candidates: the fitted model extended by all of them,
     in one variant per candidate and setting, where that candidate sits at its setting and
-    score point and the others at their off-values (where they change nothing). The
-    candidates' parameter names must not clash (`extended`)."""
+    score point and the others at their off-values (where they change nothing). None if the
+    candidates' parameter names clash (`extended`)."""
     wide = extended(model, cands)
+    if wide is None:
+        return None
     tested = tuple(dict.fromkeys(n for c in cands for n in c.tested))
     off = {n: float(type(c.term).off_values[n]) for c in cands for n in c.tested}
     variants, points, rows = [], [], []

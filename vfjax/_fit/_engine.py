@@ -354,7 +354,7 @@ def fit_many(
     mesh = _particle_mesh(swarm)
     width = lanes(n_fits + pad, swarm.size, 1 if mesh is None else mesh.devices.size)
     states = _replicated(_swarm_start(lowers, uppers, keys, program), mesh)
-    traces, times = [], [0.0]
+    traces, times = [], []
     done = 0  # evaluations: the initial positions, then one per iteration
     while done < swarm.iterations + 1:
         live = min(swarm.chunk, swarm.iterations + 1 - done)
@@ -363,7 +363,7 @@ def fit_many(
         )
         traces.append(np.asarray(costs)[:, :live])
         now = time.perf_counter() - t_all
-        times += np.linspace(times[-1], now, live + 1)[1:].tolist()
+        times += np.linspace(times[-1] if times else 0.0, now, live + 1)[1:].tolist()
         done += live
         best = float(np.min(traces[-1][:, -1]))
         if bar is not None:
@@ -371,7 +371,6 @@ def fit_many(
             bar.set_postfix(nmse=f"{best:.3g}")
         if callback is not None:
             callback(done - 1, best)
-    times = times[1:]
     pso_traces = np.concatenate(traces, axis=1)
     t_pso = time.perf_counter() - t0
 
