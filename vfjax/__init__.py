@@ -69,6 +69,7 @@ from .terms import (  # noqa: E402
     AbstractObservation,
     AbstractPressure,
     AbstractTerm,
+    AmplitudeJitter,
     BernoulliForce,
     ClosureHold,
     ClosureJitter,
@@ -79,7 +80,9 @@ from .terms import (  # noqa: E402
     GlottalGap,
     MucosalDelay,
     PressureModulation,
+    StiffnessJitter,
     TanhDamping,
+    TimingJitter,
 )
 
 __version__ = "0.1.0"
@@ -107,6 +110,7 @@ __all__ = [
     "AbstractObservation",
     "AbstractPressure",
     "AbstractTerm",
+    "AmplitudeJitter",
     "BernoulliForce",
     "ClosureHold",
     "ClosureJitter",
@@ -143,6 +147,8 @@ __all__ = [
     "PRESSURE_RANGE",
     "Polish",
     "Sampling",
+    "StiffnessJitter",
+    "TimingJitter",
     "Swarm",
     "estimate_closure_duration",
     "length_bucket",

@@ -3,7 +3,7 @@
 - `base`: the abstract kinds of term and the `Context` they read.
 - `paper`: the five terms of the seed paper's model.
 - `effects`: candidate effects the paper's model lacks (MODEL_SPEC.md's catalogue).
-- `variability`: cycle-to-cycle variability (closure-duration jitter).
+- `variability`: cycle-to-cycle variability (closure, stiffness and amplitude jitter).
 """
 
 from .base import (
@@ -16,7 +16,7 @@ from .base import (
 )
 from .effects import CATALOGUE, CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
 from .paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
-from .variability import ClosureJitter
+from .variability import AmplitudeJitter, ClosureJitter, StiffnessJitter, TimingJitter
 
 __all__ = [
     "AbstractForce",
@@ -24,6 +24,7 @@ __all__ = [
     "AbstractObservation",
     "AbstractPressure",
     "AbstractTerm",
+    "AmplitudeJitter",
     "BernoulliForce",
     "CATALOGUE",
     "CubicStiffness",
@@ -35,5 +36,7 @@ __all__ = [
     "Context",
     "Elastic",
     "FlowSeparation",
+    "StiffnessJitter",
+    "TimingJitter",
     "TanhDamping",
 ]

@@ -1,0 +1,563 @@
+"""Calibration by simulation: the null recordings of a fit and the refit statistics that a
+diagnosis compares with theirs (a parametric bootstrap of the test).
+
+A null recording is what the fitted model, with no candidate effect, would have produced: its
+GAW with the recording's cycle-to-cycle variability (period and amplitude jitter drawn
+afresh, `TimingJitter` and `AmplitudeJitter`, matched to the recording's own jitter and
+shimmer) and white noise at the recording's level, clipped at zero and rounded like the
+recording. On every recording, the observed one and the null ones, the same refit statistic
+is computed by the same compiled program (`_statistics`): the control refit of the fitted
+parameters, then each candidate's refit from the control's optimum with the candidate's
+parameters at fixed starts (`Calibration.steps` Levenberg-Marquardt steps each). A
+candidate's refit never ends worse than the control: the control's optimum, with the effect
+off, is one of its points.
+"""
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import stats
+
+from .._fit import FitResult, search_range
+from .._fit._problem import prepare
+from .._sampling import length_bucket
+from ..compare import noise_level
+from ..descriptors import describe, fundamental_frequency
+from ..recording import Recording
+from ..terms.variability import AmplitudeJitter, TimingJitter
+from ._candidates import Candidate, extended
+
+
+class Calibration(eqx.Module):
+    """How a diagnosis calibrates its verdicts by simulation (a parametric bootstrap).
+
+    Attributes:
+        replicates: most null recordings simulated (B). A candidate's p-value is
+            (1 + the null recordings whose statistic is as extreme) / (B + 1); the smallest
+            is 1 / (B + 1).
+        batch: null recordings per compiled batch. Between batches the diagnosis stops as
+            soon as every candidate's verdict is decided (a candidate whose p-value can no
+            longer fall to alpha needs no more), so a recording with nothing to find costs
+            one or two batches.
+        interval: level of the confidence interval of a needed effect's size.
+        interval_replicates: recordings simulated from the model with the effect, refitted
+            for its interval (a parametric bootstrap of the estimate).
+        steps: Levenberg-Marquardt steps of each of the statistic's refits (a few suffice:
+            they start at the fit's optimum, the null recordings' truth).
+        variability: simulate the recording's cycle-to-cycle variability in the null
+            recordings (else white noise only).
+        seed: seed of the null recordings' noise and variability.
+    """
+
+    replicates: int = eqx.field(default=127, converter=int)
+    batch: int = eqx.field(default=16, converter=int)
+    interval: float = eqx.field(default=0.95, converter=float)
+    interval_replicates: int = eqx.field(default=32, converter=int)
+    steps: int = eqx.field(default=10, converter=int)
+    variability: bool = True
+    seed: int = eqx.field(default=0, converter=int)
+
+    def __check_init__(self):
+        if self.replicates < 1 or self.batch < 1 or self.interval_replicates < 2:
+            raise ValueError(
+                "Calibration: replicates and batch must be >= 1 and interval_replicates >= 2, "
+                f"got {self.replicates}, {self.batch}, {self.interval_replicates}"
+            )
+        if not 0 < self.interval < 1:
+            raise ValueError(f"Calibration: interval must lie in (0, 1), got {self.interval}")
+
+
+DEFAULT_CALIBRATION = Calibration()
+
+
+# --------------------------------------------------------------------------- null recordings
+@dataclasses.dataclass(frozen=True)
+class Variability:
+    """The cycle-to-cycle variability of a recording, and the model's that matches it.
+
+    The `TimingJitter` offsets and `AmplitudeJitter` factors whose null recordings show the
+    recording's local jitter and shimmer (`vfjax.descriptors.describe`, measured alike on
+    the recording and on simulated ones, noise included). Local measures (consecutive
+    cycles) are blind to a slow drift or modulation, which is a candidate effect, not
+    variability.
+
+    Attributes:
+        jitter, shimmer: the recording's local jitter and shimmer (fractions).
+        timing_sd: standard deviation of the timing offsets (s).
+        amplitude_sd: standard deviation of the amplitude factors.
+        control_nmse: the control refit's NMSE on the recording.
+        simulated_control_nmse: its mean on the null recordings.
+        noise_sd: standard deviation of the white measurement noise (the GAW's unit).
+        period: the fitted model's cycle length (s), the slot of the jitter factors.
+    """
+
+    jitter: float
+    shimmer: float
+    timing_sd: float
+    amplitude_sd: float
+    control_nmse: float
+    simulated_control_nmse: float
+    noise_sd: float
+    period: float
+
+
+class _Simulator(eqx.Module):
+    """Simulates recordings of one fit's sampling (padded to its length bucket)."""
+
+    problem: object  # the fit's `Problem` (its grid and sizes)
+
+    def gaw(self, model, shift):
+        """The area as the model gives it: negative where the folds overlap (a camera adds
+        its noise to what it sees, then clips)."""
+        sim = self.problem.simulate(model, shift)
+        return jnp.where(sim.complete, sim.area, jnp.nan)
+
+
+@eqx.filter_jit
+def _jittered_gaws(simulator, model, shift, offsets, factors):
+    """The GAWs of ``model`` (whose last two terms are a `TimingJitter` and an
+    `AmplitudeJitter`) with each row of offsets and factors; NaN rows for failed
+    simulations."""
+
+    def one(o, f):
+        m = eqx.tree_at(lambda m: (m.terms[-2].offsets, m.terms[-1].factors), model, (o, f))
+        return simulator.gaw(m, shift)
+
+    return jax.vmap(one)(offsets, factors)
+
+
+class _NullSource:
+    """Draws recordings from a model: its GAW at the fit's sampling and time shift, with
+    cycle-to-cycle variability and white noise, clipped at zero and rounded like the
+    recording (integer areas stay integers)."""
+
+    def __init__(self, problem, model, shift, recording: Recording, noise_sd, period, seed):
+        self.simulator = _Simulator(problem)
+        self.shift = jnp.asarray(shift)
+        self.recording = recording
+        self.noise_sd = float(noise_sd)
+        self.period = float(period)
+        horizon = float(problem.grid.t_start) + float(problem.grid.max_time_shift)
+        horizon += recording.n_frames / recording.fps
+        self.n_slots = length_bucket(math.ceil(horizon / period) + 2)
+        self.model = model.with_term(TimingJitter(np.zeros(self.n_slots), period)).with_term(
+            AmplitudeJitter(np.ones(self.n_slots), period)
+        )
+        self.integral = bool(np.all(recording.area == np.round(recording.area)))
+        self.rng = np.random.default_rng(seed)
+
+    def draw(self, n: int, timing_sd: float, amplitude_sd: float, model=None) -> np.ndarray:
+        """``n`` recordings' areas (n, frames bucket), zero beyond the recording, with timing
+        offsets of deviation ``timing_sd`` (s) and amplitude factors of ``amplitude_sd``."""
+        shape = (n, self.n_slots)
+        offsets = timing_sd * self.rng.standard_normal(shape)
+        factors = np.clip(1.0 + amplitude_sd * self.rng.standard_normal(shape), 0.05, None)
+        base = self.model if model is None else model
+        clean = np.asarray(
+            _jittered_gaws(
+                self.simulator, base, self.shift, jnp.asarray(offsets), jnp.asarray(factors)
+            )
+        )
+        frames = self.recording.n_frames
+        noisy = clean + self.noise_sd * self.rng.standard_normal(clean.shape)
+        noisy = np.maximum(noisy, 0.0)
+        if self.integral:
+            noisy = np.round(noisy)
+        noisy[:, frames:] = 0.0
+        return noisy
+
+
+def _jitter_shimmer(source, areas: np.ndarray) -> tuple[float, float]:
+    """Mean local jitter and shimmer of simulated recordings (rows)."""
+    rec = source.recording
+    found = []
+    for a in areas:
+        if np.all(np.isfinite(a)):
+            d = describe(a[: rec.n_frames], rec.fps)
+            if np.isfinite(d.jitter) and np.isfinite(d.shimmer):
+                found.append((d.jitter, d.shimmer))
+    if not found:
+        return math.nan, math.nan
+    return tuple(float(x) for x in np.mean(found, axis=0))
+
+
+#: Deviations of the timing offsets (s) and amplitude factors tried first.
+_TRIAL_SD = (5e-5, 0.02)
+
+
+def variability_kind(source: "_NullSource", n: int = 8) -> tuple[float, float, float, float]:
+    """(jitter, shimmer, timing_sd, amplitude_sd): the recording's local jitter and
+    shimmer and the deviations of the timing offsets (s) and amplitude factors that
+    reproduce them on ``n`` simulated recordings
+    (the excess of the squared measure over what noise alone shows taken as proportional
+    to the factors' variance, solved twice); zero where the noise alone shows as much."""
+    rec = source.recording
+    target = describe(rec.area, rec.fps)
+    want = (float(target.jitter), float(target.shimmer))
+    base = _jitter_shimmer(source, source.draw(n, 0.0, 0.0))
+    sd = list(_TRIAL_SD)
+    if not all(np.isfinite(want + base)):
+        return *want, *sd
+    for _ in range(2):
+        got = _jitter_shimmer(source, source.draw(n, *sd))
+        solved = []
+        for w, b0, g, trial in zip(want, base, got, sd):
+            slope = (g**2 - b0**2) / trial**2 if trial > 0 else 0.0
+            excess = w**2 - b0**2
+            solved.append(min(math.sqrt(excess / slope), 0.3) if slope > 0 and excess > 0 else 0)
+        if not any(solved):
+            return *want, 0.0, 0.0
+        sd = solved
+    return *want, *sd
+
+
+# ---------------------------------------------------------------------------- the statistic
+@dataclasses.dataclass(frozen=True)
+class _Jobs:
+    """The refits of one statistic: the control, then each candidate from its starts."""
+
+    problem: object  # the wide model's `Problem` (the observed recording's data)
+    y0: jax.Array  # (n_y,) the fit's point: coordinates 0, its shift, log S 0
+    starts: jax.Array  # (jobs, n_y) candidate starts; NaN where the control's optimum is taken
+    frees: jax.Array  # (1 + jobs, n_params) fitted parameters of the control and each job
+    bases: jax.Array  # (1 + jobs, columns, n_y) each refit's search directions
+    owner: tuple  # candidate index of each job
+    names: tuple  # the wide problem's parameter names
+
+
+def levenberg_marquardt(residual, y0, basis, steps: int):
+    """``steps`` Levenberg-Marquardt steps on ``residual`` from ``y0`` within the span of the
+    rows of ``basis`` (unit vectors of the free coordinates; zero rows are ignored), keeping
+    the best point: (point, its sum of squares).
+
+    A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and
+    the solve traces anywhere (inside `jax.shard_map` too). Each step: the Jacobian's
+    columns by forward mode (one batched jvp, which also gives the residual), a damped
+    Gauss-Newton step with Marquardt's scaling, one trial evaluation; the damping falls
+    by 3 after a success and rises by 4 after a failure."""
+
+    def jac(y):
+        def along(d):
+            return jax.jvp(residual, (y,), (d,))
+
+        r, cols = jax.vmap(along, out_axes=(None, 1))(basis)
+        return r, cols
+
+    r0 = residual(y0)
+    c0 = jnp.sum(r0**2)
+    c0 = jnp.where(jnp.isfinite(c0), c0, jnp.inf)
+
+    def step(carry, _):
+        y, c, damping = carry
+        r, j = jac(y)
+        h = j.T @ j
+        g = j.T @ r
+        d = jnp.diag(h)
+        d = jnp.where(d > 0, d, 1.0)  # a zero column (a padding direction) does not move
+        delta = -jnp.linalg.solve(h + damping * jnp.diag(d), g)
+        trial = y + basis.T @ delta
+        ct = jnp.sum(residual(trial) ** 2)
+        better = jnp.isfinite(ct) & (ct < c)
+        y = jnp.where(better, trial, y)
+        c = jnp.where(better, ct, c)
+        damping = jnp.clip(jnp.where(better, damping / 3.0, damping * 4.0), 1e-9, 1e9)
+        return (y, c, damping), None
+
+    (y, c, _), _ = jax.lax.scan(step, (y0, c0, jnp.asarray(1e-3, y0.dtype)), None, length=steps)
+    return y, c
+
+
+@eqx.filter_jit
+def _start(problem, z):
+    return problem.start(z)
+
+
+@eqx.filter_jit
+def _statistics(problem, y0, starts, frees, bases, data, steps: int, mesh):
+    """For each recording (rows of ``data``): the control's NMSE and point, and each job's
+    NMSE (never above the control's) and point. With a ``mesh``, each device refits its
+    share of the recordings."""
+
+    def one(measured):
+        p = dataclasses.replace(problem, measured=measured)
+        pc = dataclasses.replace(p, free=frees[0])
+        yc, cc = levenberg_marquardt(pc.residual, y0, bases[0], steps)
+
+        def job(start, free, basis):
+            pj = dataclasses.replace(p, free=free)
+            y = jnp.where(jnp.isnan(start), yc, start)
+            yj, cj = levenberg_marquardt(pj.residual, y, basis, steps)
+            return jnp.where(cj <= cc, cj, cc), jnp.where(cj <= cc, yj, yc)
+
+        cj, yj = jax.vmap(job)(starts, frees[1:], bases[1:])
+        return cc, yc, cj, yj
+
+    def run(data):
+        return jax.lax.map(one, data)
+
+    if mesh is None:
+        return run(data)
+    spec = jax.sharding.PartitionSpec(mesh.axis_names[0])
+    return jax.shard_map(run, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)(data)
+
+
+def _mesh(n_recordings: int):
+    """A mesh of the default backend's devices over which to split ``n_recordings``
+    recordings, or None (one device, or a count that does not divide among them)."""
+    devices = jax.devices()
+    if len(devices) < 2 or n_recordings % len(devices):
+        return None
+    return jax.sharding.Mesh(np.array(devices), ("recordings",))
+
+
+def _start_values(cand: Candidate, model) -> list[dict]:
+    """The candidate's fixed starts: its tested parameters a step off their off-values (a
+    third of their search scale; two-sided single parameters at the off-value), over a
+    lattice of four grid settings and its directions (a sine/cosine pair: two phases)."""
+
+    def scale(name):
+        return (search_range(model, name) or (0.0, 1.0, 0.1))[2]
+
+    step = cand.one_sided or len(cand.grid) > 1 or len(cand.directions) > 1
+    tested = {t: cand.point[t] + (scale(t) / 3 if step else 0.0) for t in cand.tested}
+    if len(cand.grid) == 1 and len(cand.directions) == 1:
+        return [{**cand.grid[0], **cand.directions[0], **tested}]
+    grid = [cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, min(4, len(cand.grid)))]
+    return [{**g, **d, **tested} for g in grid for d in cand.directions]
+
+
+def refit_jobs(result: FitResult, recording: Recording, cands) -> _Jobs:
+    """The statistic's refits of ``result`` on ``recording``: its model extended by every
+    candidate (held at their off-values), the control, and each candidate's starts."""
+    wide = extended(result.model, cands)
+    if wide is None:
+        raise ValueError("the candidates' parameter names clash: calibrate them one by one")
+    fitted = tuple(result.params)
+    union = fitted + tuple(
+        dict.fromkeys(n for c in cands for n in c.tested + c.extra if n not in fitted)
+    )
+    warmup = max([result.sampling.warmup] + [float(type(c.term).min_warmup) for c in cands])
+    sampling = dataclasses.replace(result.sampling, warmup=warmup)
+    period = 1.0 / fundamental_frequency(recording.area, recording.fps)
+    problem, _, _ = prepare(wide, recording, union, sampling, period, None)
+    names = problem.names
+
+    def coords(values):
+        y = np.full(len(names) + 1 + problem.fit_s, np.nan)
+        for i, n in enumerate(names):
+            if n in values:
+                if problem.linear[i]:
+                    y[i] = (values[n] - float(problem.reference[i])) / float(problem.scale[i])
+                else:
+                    y[i] = math.log(values[n] / float(problem.reference[i]))
+        return y
+
+    # the fitted point, its time shift found afresh on the grid of shifts (a longer warm-up
+    # than the fit's moves the phase of the cycle at the first frame), S projected
+    y0, _ = _start(problem, jnp.zeros(len(names)))
+    y0 = np.asarray(y0)
+    frees = [[1.0 if n in fitted else 0.0 for n in names]]
+    starts, owner = [], []
+    for k, c in enumerate(cands):
+        own = set(fitted) | set(c.tested + c.extra)
+        for s in _start_values(c, wide):
+            starts.append(coords(s))
+            frees.append([1.0 if n in own else 0.0 for n in names])
+            owner.append(k)
+    # each refit's search directions: its free parameters, the time shift and S
+    n_y = y0.size
+    movable = [np.r_[f, np.ones(n_y - len(names))] for f in frees]
+    width = int(max(m.sum() for m in movable))
+    bases = np.zeros((len(frees), width, n_y))
+    for i, m in enumerate(movable):
+        idx = np.flatnonzero(m)
+        bases[i, np.arange(idx.size), idx] = 1.0
+    return _Jobs(
+        problem,
+        jnp.asarray(y0),
+        jnp.asarray(np.array(starts)),
+        jnp.asarray(np.array(frees)),
+        jnp.asarray(bases),
+        tuple(owner),
+        names,
+    )
+
+
+def run_statistics(jobs: _Jobs, data: np.ndarray, steps: int):
+    """The control's NMSE (recordings,), each candidate's best NMSE (recordings,
+    candidates) and the point of each candidate's best refit (recordings, candidates, n_y),
+    and the control's point (recordings, n_y)."""
+    cc, yc, cj, yj = (
+        np.asarray(a)
+        for a in _statistics(
+            jobs.problem,
+            jobs.y0,
+            jobs.starts,
+            jobs.frees,
+            jobs.bases,
+            jnp.asarray(data),
+            int(steps),
+            _mesh(len(data)),
+        )
+    )
+    owner = np.asarray(jobs.owner)
+    n_cands = int(owner.max()) + 1
+    best_cost = np.full((len(data), n_cands), np.inf)
+    best_y = np.zeros((len(data), n_cands, yj.shape[-1]))
+    for k in range(n_cands):
+        rows = np.flatnonzero(owner == k)
+        pick = rows[np.argmin(np.where(np.isfinite(cj[:, rows]), cj[:, rows], np.inf), axis=1)]
+        best_cost[:, k] = cj[np.arange(len(data)), pick]
+        best_y[:, k] = yj[np.arange(len(data)), pick]
+    return cc, best_cost, best_y, yc
+
+
+def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray:
+    """The F test's p-value of each refit's error fall (a monotone standardisation across
+    candidates of different degrees of freedom; the calibration, not the F distribution,
+    gives the verdict's p-values)."""
+    control = np.asarray(control, float)[..., None]
+    refit = np.asarray(refit, float)
+    dofs = np.asarray(dofs, float)
+    resid = np.maximum(n_frames - n_fitted - dofs, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.maximum(control - refit, 0.0) / dofs / (refit / resid)
+    f = np.where(np.isfinite(f), f, np.where(refit < control, np.inf, 0.0))
+    return stats.f.sf(f, dofs, resid)
+
+
+def noise_sd(result: FitResult, recording: Recording) -> float:
+    """White measurement noise on the recording (its unit), from the fit's residual."""
+    return noise_level(recording.area, result.fitted_gaw(recording))
+
+
+# ------------------------------------------------------------------------------ calibration
+@dataclasses.dataclass(frozen=True)
+class Calibrated:
+    """The calibrated refit statistics of a diagnosis.
+
+    Attributes:
+        candidates: the candidates' names, in order.
+        control_nmse: the control refit's NMSE on the recording.
+        nmse: each candidate's refit NMSE on the recording (never above the control's).
+        values: each candidate's fitted parameters on the recording.
+        f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
+        p_values: family-wise p-values: (1 + null recordings whose smallest F-test p-value
+            over all candidates is at most this candidate's) / (1 + null recordings).
+        marginal_p_values: the same against each candidate's own null statistic alone.
+        replicates: null recordings simulated (fewer than the most when every verdict was
+            decided early).
+        null_min_f_p: the smallest F-test p-value over the candidates on each null recording.
+        variability: the variability and noise of the null recordings.
+    """
+
+    candidates: tuple
+    control_nmse: float
+    nmse: tuple
+    values: tuple
+    f_p_values: tuple
+    p_values: tuple
+    marginal_p_values: tuple
+    replicates: int
+    null_min_f_p: tuple
+    variability: Variability
+
+
+def _dofs(cands) -> np.ndarray:
+    return np.array([len(c.tested + c.extra) for c in cands], float)
+
+
+def _values(jobs: _Jobs, y, cand) -> dict:
+    """The candidate's parameter values at the wide problem's point ``y``."""
+    model, _ = jobs.problem.unpack(jnp.asarray(y))
+    params = model.params()
+    return {n: float(params[n]) for n in cand.tested + cand.extra}
+
+
+def calibrate(
+    result: FitResult,
+    recording: Recording,
+    cands,
+    alpha: float,
+    calibration: Calibration = DEFAULT_CALIBRATION,
+) -> Calibrated:
+    """Calibrate each candidate's refit statistic on null recordings of ``result``.
+
+    Sequential: null recordings come in batches of ``calibration.batch`` (the first one
+    with the recording itself); once every candidate's family-wise p-value exceeds
+    ``alpha`` whatever the remaining ones show, no more are simulated. The refits simulate
+    from the longest warm-up that a candidate needs (``min_warmup``: a slow modulation's
+    history must be in the state at the first frame)."""
+    cands = list(cands)
+    jobs = refit_jobs(result, recording, cands)
+    period = 1.0 / fundamental_frequency(result.fitted_gaw(recording), recording.fps)
+    noise = noise_sd(result, recording)
+    model, shift = jobs.problem.unpack(jobs.y0)
+    source = _NullSource(
+        jobs.problem,
+        model,
+        shift,
+        recording,
+        noise,
+        period,
+        calibration.seed,
+    )
+    size = calibration.batch
+    observed = np.asarray(jobs.problem.measured)[None]
+    n_fitted = len(result.params) + 1
+    dofs = _dofs(cands)
+    steps = calibration.steps
+    if calibration.variability:
+        jitter, shimmer, sd_t, sd_a = variability_kind(source)
+    else:
+        jitter = shimmer = sd_t = sd_a = 0.0
+    rows = [observed, source.draw(size - 1, sd_t, sd_a)]
+    cc, cb, yb, _ = run_statistics(jobs, np.concatenate(rows), steps)
+    control_nmse = float(cc[0])
+    q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
+    level_count = alpha * (calibration.replicates + 1)  # exceedances that rule a candidate out
+    nulls_min, nulls_q, controls = [], [], []
+    c, b = cc[1:], cb[1:]  # the first batch's null recordings
+    while len(nulls_min) < calibration.replicates:
+        if len(c) == 0:
+            c, b, _, _ = run_statistics(jobs, source.draw(size, sd_t, sd_a), steps)
+        q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
+        q = np.where(np.isfinite(c)[:, None], q, 0.0)  # a failed null counts against
+        take = min(size, calibration.replicates - len(nulls_min))
+        nulls_q += list(q[:take])
+        nulls_min += list(q[:take].min(axis=1))
+        controls += list(c[:take])
+        c = b = []
+        exceed = (np.asarray(nulls_min)[:, None] <= q_obs[None, :]).sum(axis=0)
+        if np.all(1 + exceed > level_count):
+            break
+    nulls_min, nulls_q = np.asarray(nulls_min), np.asarray(nulls_q)
+    n = len(nulls_min)
+    family = (1 + (nulls_min[:, None] <= q_obs[None, :]).sum(axis=0)) / (n + 1)
+    marginal = (1 + (nulls_q <= q_obs[None, :]).sum(axis=0)) / (n + 1)
+    variability = Variability(
+        jitter,
+        shimmer,
+        sd_t,
+        sd_a,
+        control_nmse,
+        float(np.nanmean(controls)),
+        noise,
+        period,
+    )
+    return Calibrated(
+        candidates=tuple(c.name for c in cands),
+        control_nmse=control_nmse,
+        nmse=tuple(float(x) for x in cb[0]),
+        values=tuple(_values(jobs, yb[0, k], c) for k, c in enumerate(cands)),
+        f_p_values=tuple(float(x) for x in q_obs),
+        p_values=tuple(float(x) for x in family),
+        marginal_p_values=tuple(float(x) for x in marginal),
+        replicates=n,
+        null_min_f_p=tuple(float(x) for x in nulls_min),
+        variability=variability,
+    )
