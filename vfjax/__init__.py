@@ -22,6 +22,7 @@ from . import (  # noqa: E402
     workflow,
 )
 from ._diagnosis import (  # noqa: E402
+    Calibration,
     Candidate,
     Criteria,
     Diagnosis,
@@ -129,6 +130,7 @@ __all__ = [
     "TanhDamping",
     "VocalFoldModel",
     "Candidate",
+    "Calibration",
     "Criteria",
     "RefitPlan",
     "Diagnosis",

@@ -238,7 +238,7 @@ def cmd_diagnose(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from ._diagnosis import Criteria, investigate
+    from ._diagnosis import Calibration, Criteria, investigate
     from ._fit import Swarm
     from .io import check_output_folder, staged_output
     from .presets import initial_model
@@ -255,6 +255,7 @@ def cmd_diagnose(args) -> int:
             rounds=args.rounds,
             restarts=args.restarts,
             criteria=Criteria(alpha=args.alpha),
+            calibration=Calibration(replicates=args.replicates, seed=args.seed),
             swarm=Swarm(iterations=args.iterations),
             progress=True,
         )
@@ -486,7 +487,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     dg.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from")
     dg.add_argument("--rounds", type=int, default=2, help="most effects to add (default: 2)")
-    dg.add_argument("--alpha", type=float, default=0.01, help="significance level")
+    dg.add_argument(
+        "--alpha",
+        type=float,
+        default=0.01,
+        help="family-wise significance level over the candidates (default: %(default)s)",
+    )
+    dg.add_argument(
+        "--replicates",
+        type=int,
+        default=111,
+        help="most null recordings simulated to calibrate the verdicts; the smallest "
+        "p-value is 1 / (1 + replicates) (default: %(default)s)",
+    )
+    dg.add_argument(
+        "--seed", type=int, default=0, help="seed of the null recordings (default: %(default)s)"
+    )
     dg.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
     dg.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     dg.set_defaults(func=cmd_diagnose)

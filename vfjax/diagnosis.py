@@ -7,15 +7,17 @@ method is described in the implementation's package, ``vfjax._diagnosis``.
 
 from ._diagnosis import (
     DEFAULT_CANDIDATES,
+    Calibrated,
     Candidate,
     Criteria,
     Diagnosis,
     EffectRefit,
     EffectScore,
     RefitPlan,
+    Variability,
+    calibrate,
     default_candidates,
     diagnose,
-    effective_frames,
     extend,
     refit_each,
     refit_with,
@@ -24,6 +26,7 @@ from ._diagnosis import (
 
 __all__ = [
     "DEFAULT_CANDIDATES",
+    "Calibrated",
     "Candidate",
     "Criteria",
     "Diagnosis",
@@ -32,9 +35,10 @@ __all__ = [
     "RefitPlan",
     "default_candidates",
     "diagnose",
-    "effective_frames",
     "extend",
     "refit_each",
     "refit_with",
     "score_tests",
+    "Variability",
+    "calibrate",
 ]

@@ -22,52 +22,58 @@ off, or a user's own term), two questions:
    is kept and its p-value is Bonferroni-corrected over the grid; columns that belong
    together (a modulation's sine and cosine phase) are tested jointly (``score_directions``).
 
-2. **Refits** (`RefitPlan`): the model with the effect is refitted, warm-started from the
-   current fit and from the score test's one-step estimate of the effect's parameters (a
-   few starts, one swarm each), giving the error each effect would reach. Every refit of a
-   diagnosis runs through one compiled program: the model extended by every candidate, each
-   swarm holding the candidates not its own at their off-values (`refit_each`). The leading
-   candidate and the control are then refitted once more with a larger search (more swarms
-   and iterations, ``RefitPlan.confirm_iterations``), so that the error and parameters
-   reported for the effect to add are a thorough search's, not a quick one's. A leader whose
-   quick refit already removes ``Criteria.min_fall`` of the error gets a search sized to its
-   dimension: twice the swarms and a quarter more iterations per parameter beyond its first
-   (a modulation's depth, frequency and phase: 4x the swarms, 1.5x the iterations).
+2. **Refits and their calibration.** The search (`RefitPlan`): the model with each effect is
+   refitted, warm-started from the current fit and from the score test's one-step estimate
+   (a few starts, one swarm each), the control (the model alone) the same way; every search
+   refit of a diagnosis runs through one compiled program, the fitted model extended by
+   every candidate, each swarm holding the candidates not its own at their off-values
+   (`refit_each`). The leader and the control are then searched once more with more swarms
+   and iterations (``RefitPlan.confirm_iterations``). These refits are where an extension
+   starts (`extend_from`).
 
-An effect is *needed* when the evidence is significant at ``Criteria.alpha`` (Bonferroni-corrected
-over the candidates; the evidence is twice the smaller p-value of the score test and of an F
-test of the refit's error fall, on the residual's effective number of independent frames),
-and its refit removes at least ``Criteria.min_fall`` of the squared error, and at least
-``Criteria.noise_multiple`` (3) noise floors' worth of it (the NMSE that white measurement
-noise alone leaves, `vfjax.compare.noise_level`): a few extra parameters fitted to noise and
-cycle-to-cycle jitter remove less. (The refit's F test alone is not enough: on data with
-jitter and no effect, a slow pressure modulation absorbs part of the drifting timing and its
-F test, even on the effective number of frames, comes out "significant".) Falls are measured
-from a control refit of the model without any effect, done the same way, so that a
-refit that merely finds a better optimum of the fitted model does not count.
-Candidates are ranked by the error their refit reaches (by p-value without refits). When no
-effect is needed, or the best one explains little of the misfit, `Diagnosis.verdict` says so
-in words, with where the model fails (`vfjax.compare`).
+   The test (`Calibration`, a parametric bootstrap): from the best fit without any effect,
+   null recordings are simulated, each the fitted model with the recording's white noise and
+   its cycle-to-cycle variability drawn afresh (`TimingJitter` offsets and `AmplitudeJitter`
+   factors whose deviations reproduce the recording's local jitter and shimmer), clipped and
+   rounded like the recording. On the recording and on every null recording alike, one
+   compiled program refits the control (a few Levenberg-Marquardt steps from the fit) and
+   each candidate from the control's optimum with its parameters at a fixed lattice of
+   starts; a candidate's refit never ends above the control. Each fall is standardised by
+   its F test's p-value (degrees of freedom differ between candidates); a candidate's
+   family-wise p-value is the share of null recordings whose smallest standardised p over
+   all candidates is at most the candidate's own, (1 + count) / (1 + null recordings).
+   Null recordings come in batches, and stop as soon as every verdict is decided.
+
+An effect is *needed* when its calibrated p-value is at most ``Criteria.alpha`` and the
+interval of its size (a parametric bootstrap: recordings simulated from the model with the
+effect, refitted alike) excludes its off-value; significant with an interval that includes
+it, the effect is "detectable but not identifiable". Candidates are ranked by calibrated
+p-value (by score p-value without refits). When no effect is needed, `Diagnosis.verdict`
+says so in words, with where the model fails (`vfjax.compare`).
 
 - ``_options``: `Criteria` and `RefitPlan`;
+- ``_calibration``: `Calibration`, the null recordings and the calibrated statistic;
 - ``_candidates``: `Candidate`, the catalogue's candidates and the model extended by them;
 - ``_score``: the score tests and the GAW's sensitivities;
 - ``_refits``: the refits' starts, `refit_each`, the confirming refit;
-- ``_verdict``: `Diagnosis`, the refit's F test and the verdict in words;
+- ``_verdict``: `Diagnosis`, `EffectRefit` and the verdict in words;
 - ``_diagnose``: `diagnose` and `extend`;
 - ``_investigate``: `investigate` (fit, diagnose, extend, repeat).
 """
 
+from ._calibration import Calibrated, Calibration, Variability, calibrate
 from ._candidates import DEFAULT_CANDIDATES, Candidate, default_candidates
 from ._diagnose import diagnose, extend
 from ._investigate import Investigation, Round, extend_from, investigate
 from ._options import Criteria, RefitPlan
 from ._refits import refit_each, refit_with
 from ._score import EffectScore, score_tests
-from ._verdict import Diagnosis, EffectRefit, effective_frames
+from ._verdict import Diagnosis, EffectRefit
 
 __all__ = [
     "DEFAULT_CANDIDATES",
+    "Calibrated",
+    "Calibration",
     "Candidate",
     "Criteria",
     "Diagnosis",
@@ -78,11 +84,12 @@ __all__ = [
     "Round",
     "default_candidates",
     "diagnose",
-    "effective_frames",
     "extend",
     "extend_from",
     "investigate",
     "refit_each",
     "refit_with",
     "score_tests",
+    "Variability",
+    "calibrate",
 ]

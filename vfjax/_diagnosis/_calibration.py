@@ -26,7 +26,7 @@ from .._fit import FitResult, search_range
 from .._fit._problem import prepare
 from .._sampling import length_bucket
 from ..compare import noise_level
-from ..descriptors import describe, fundamental_frequency
+from ..descriptors import cycle_starts, describe, fundamental_frequency
 from ..recording import Recording
 from ..terms.variability import AmplitudeJitter, TimingJitter
 from ._candidates import Candidate, extended
@@ -53,7 +53,7 @@ class Calibration(eqx.Module):
         seed: seed of the null recordings' noise and variability.
     """
 
-    replicates: int = eqx.field(default=127, converter=int)
+    replicates: int = eqx.field(default=111, converter=int)
     batch: int = eqx.field(default=16, converter=int)
     interval: float = eqx.field(default=0.95, converter=float)
     interval_replicates: int = eqx.field(default=32, converter=int)
@@ -83,7 +83,10 @@ class Variability:
     recording's local jitter and shimmer (`vfjax.descriptors.describe`, measured alike on
     the recording and on simulated ones, noise included). Local measures (consecutive
     cycles) are blind to a slow drift or modulation, which is a candidate effect, not
-    variability.
+    variability. Jitter measured on a few cycles is noisy, and a mechanism the model lacks
+    varies too: their size is set so that null recordings show the recording's misfit that
+    changes from cycle to cycle (`cycle_deviation`; the misfit every cycle shares is left to
+    the candidates), their proportions are the jitter and shimmer's (`variability_size`).
 
     Attributes:
         jitter, shimmer: the recording's local jitter and shimmer (fractions).
@@ -148,6 +151,9 @@ class _NullSource:
             AmplitudeJitter(np.ones(self.n_slots), period)
         )
         self.integral = bool(np.all(recording.area == np.round(recording.area)))
+        zero, one = jnp.zeros((2, self.n_slots)), jnp.ones((2, self.n_slots))
+        clean = np.asarray(_jittered_gaws(self.simulator, self.model, self.shift, zero, one))
+        self.clean = np.maximum(clean[0], 0.0)
         self.rng = np.random.default_rng(seed)
 
     def draw(self, n: int, timing_sd: float, amplitude_sd: float, model=None) -> np.ndarray:
@@ -213,6 +219,59 @@ def variability_kind(source: "_NullSource", n: int = 8) -> tuple[float, float, f
             return *want, 0.0, 0.0
         sd = solved
     return *want, *sd
+
+
+def cycle_deviation(area, fitted, fps: float) -> float:
+    """The part of a GAW's misfit that changes from cycle to cycle, as a share of its
+    squared area: the residual (``area`` - ``fitted``) cut at the fitted GAW's cycles,
+    each resampled to one common length, minus their mean (the misfit that every cycle
+    shares, which an effect may explain); the sum of squares left, over sum(area²). NaN
+    with fewer than three cycles."""
+    a, g = np.asarray(area, float), np.asarray(fitted, float)
+    starts = cycle_starts(g, fps) * fps
+    if starts.size < 4:
+        return math.nan
+    length = max(int(round(float(np.median(np.diff(starts))))), 2)
+    frames = np.arange(a.size)
+    r = a - g
+    rows = np.stack(
+        [
+            np.interp(s0 + (s1 - s0) * np.arange(length) / length, frames, r)
+            for s0, s1 in zip(starts[:-1], starts[1:])
+        ]
+    )
+    per_point = float(np.mean(np.diff(starts))) / length  # frames per resampled point
+    dev = rows - rows.mean(axis=0)
+    return float(np.sum(dev**2) * per_point / np.sum(a**2))
+
+
+def _deviation(source, areas) -> float:
+    rec = source.recording
+    clean = source.clean[: rec.n_frames]
+    found = [cycle_deviation(x[: rec.n_frames], clean, rec.fps) for x in areas]
+    found = [f for f in found if np.isfinite(f)]
+    return float(np.mean(found)) if found else math.nan
+
+
+def variability_size(source: "_NullSource", fitted, kind, n: int = 8) -> tuple[float, float]:
+    """The deviations ``kind`` (timing s, amplitude) scaled together so that null
+    recordings show the recording's cycle-to-cycle misfit (`cycle_deviation` about
+    ``fitted``, its fitted GAW; about the clean GAW for the null recordings), the excess
+    over what noise alone leaves taken as proportional to the variance, solved twice.
+    Where ``kind`` is zero, the trial deviations' proportions (`_TRIAL_SD`)."""
+    rec = source.recording
+    want = cycle_deviation(rec.area, fitted, rec.fps)
+    base = _deviation(source, source.draw(n, 0.0, 0.0))
+    sd = np.asarray(kind if any(kind) else _TRIAL_SD, float)
+    if not (np.isfinite(want) and np.isfinite(base)) or want <= base:
+        return 0.0, 0.0
+    for _ in range(2):
+        got = _deviation(source, source.draw(n, *sd))
+        if not np.isfinite(got) or got <= base:
+            break
+        sd = sd * math.sqrt((want - base) / (got - base))
+        sd = np.minimum(sd, (2e-3, 0.3))
+    return float(sd[0]), float(sd[1])
 
 
 # ---------------------------------------------------------------------------- the statistic
@@ -330,9 +389,12 @@ def _start_values(cand: Candidate, model) -> list[dict]:
     return [{**g, **d, **tested} for g in grid for d in cand.directions]
 
 
-def refit_jobs(result: FitResult, recording: Recording, cands) -> _Jobs:
+def refit_jobs(result: FitResult, recording: Recording, cands, found=None) -> _Jobs:
     """The statistic's refits of ``result`` on ``recording``: its model extended by every
-    candidate (held at their off-values), the control, and each candidate's starts."""
+    candidate (held at their off-values), the control, and each candidate's starts: the
+    fixed lattice (`_start_values`) and one more, ``found[k]`` (values of fitted and
+    effect parameters, e.g. where a search on the recording ended; the lattice's first
+    start without one), the same for every recording the statistic is computed on."""
     wide = extended(result.model, cands)
     if wide is None:
         raise ValueError("the candidates' parameter names clash: calibrate them one by one")
@@ -364,7 +426,9 @@ def refit_jobs(result: FitResult, recording: Recording, cands) -> _Jobs:
     starts, owner = [], []
     for k, c in enumerate(cands):
         own = set(fitted) | set(c.tested + c.extra)
-        for s in _start_values(c, wide):
+        lattice = _start_values(c, wide)
+        extra = (found[k] if found is not None and found[k] else None) or lattice[0]
+        for s in lattice + [extra]:
             starts.append(coords(s))
             frees.append([1.0 if n in own else 0.0 for n in names])
             owner.append(k)
@@ -453,6 +517,9 @@ class Calibrated:
             decided early).
         null_min_f_p: the smallest F-test p-value over the candidates on each null recording.
         variability: the variability and noise of the null recordings.
+        intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
+            alpha, else None.
+        interval_level: the intervals' confidence level (``Calibration.interval``).
     """
 
     candidates: tuple
@@ -465,6 +532,8 @@ class Calibrated:
     replicates: int
     null_min_f_p: tuple
     variability: Variability
+    intervals: tuple
+    interval_level: float
 
 
 def _dofs(cands) -> np.ndarray:
@@ -484,6 +553,7 @@ def calibrate(
     cands,
     alpha: float,
     calibration: Calibration = DEFAULT_CALIBRATION,
+    found=None,
 ) -> Calibrated:
     """Calibrate each candidate's refit statistic on null recordings of ``result``.
 
@@ -491,9 +561,15 @@ def calibrate(
     with the recording itself); once every candidate's family-wise p-value exceeds
     ``alpha`` whatever the remaining ones show, no more are simulated. The refits simulate
     from the longest warm-up that a candidate needs (``min_warmup``: a slow modulation's
-    history must be in the state at the first frame)."""
+    history must be in the state at the first frame). ``found``: per candidate, a start of
+    its refit found by a search on the recording (`refit_jobs`).
+
+    For each candidate whose p-value is at most ``alpha``, the interval of its parameters
+    (a parametric bootstrap: ``calibration.interval_replicates`` recordings simulated from
+    the model with the effect at its fitted values, with the same variability and noise,
+    refitted alike; the estimate plus or minus the normal quantile times their spread)."""
     cands = list(cands)
-    jobs = refit_jobs(result, recording, cands)
+    jobs = refit_jobs(result, recording, cands, found)
     period = 1.0 / fundamental_frequency(result.fitted_gaw(recording), recording.fps)
     noise = noise_sd(result, recording)
     model, shift = jobs.problem.unpack(jobs.y0)
@@ -513,6 +589,7 @@ def calibrate(
     steps = calibration.steps
     if calibration.variability:
         jitter, shimmer, sd_t, sd_a = variability_kind(source)
+        sd_t, sd_a = variability_size(source, result.fitted_gaw(recording), (sd_t, sd_a))
     else:
         jitter = shimmer = sd_t = sd_a = 0.0
     rows = [observed, source.draw(size - 1, sd_t, sd_a)]
@@ -539,6 +616,10 @@ def calibrate(
     n = len(nulls_min)
     family = (1 + (nulls_min[:, None] <= q_obs[None, :]).sum(axis=0)) / (n + 1)
     marginal = (1 + (nulls_q <= q_obs[None, :]).sum(axis=0)) / (n + 1)
+    intervals = [None] * len(cands)
+    for k, cand in enumerate(cands):
+        if family[k] <= alpha:
+            intervals[k] = _interval(jobs, source, yb[0, k], k, cand, (sd_t, sd_a), calibration)
     variability = Variability(
         jitter,
         shimmer,
@@ -560,4 +641,32 @@ def calibrate(
         replicates=n,
         null_min_f_p=tuple(float(x) for x in nulls_min),
         variability=variability,
+        intervals=tuple(intervals),
+        interval_level=calibration.interval,
     )
+
+
+def _interval(jobs, source, y, k, cand, sds, calibration) -> dict:
+    """{parameter: (low, high)} of candidate ``k``'s parameters at the point ``y`` of the
+    recording's refit (see `calibrate`)."""
+    model, shift = jobs.problem.unpack(jnp.asarray(y))
+    model = model.with_term(source.model.terms[-2]).with_term(source.model.terms[-1])
+    size, n = calibration.batch, calibration.interval_replicates
+    saved = source.shift
+    source.shift = jnp.asarray(shift)
+    try:
+        draws = [source.draw(size, *sds, model=model) for _ in range(-(-n // size))]
+    finally:
+        source.shift = saved
+    values = []
+    for data in draws:
+        _, _, yb, _ = run_statistics(jobs, data, calibration.steps)
+        values += [_values(jobs, row, cand) for row in yb[:, k]]
+    values = values[:n]
+    estimate = _values(jobs, y, cand)
+    z = float(stats.norm.ppf(0.5 + calibration.interval / 2))
+    out = {}
+    for name, v in estimate.items():
+        spread = float(np.std([x[name] for x in values], ddof=1))
+        out[name] = (v - z * spread, v + z * spread)
+    return out

@@ -8,18 +8,12 @@ import numpy as np
 from .._fit import FitResult, Swarm, default_warmup, fit
 from ..compare import compare, noise_level
 from ..recording import Recording
+from ._calibration import DEFAULT_CALIBRATION, Calibration, calibrate
 from ._candidates import as_candidates
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
 from ._refits import anchor_values, confirm, error, refit_each, refit_starts
-from ._score import period_frames, score_tests
-from ._verdict import (
-    Diagnosis,
-    EffectRefit,
-    effective_frames,
-    evidence,
-    refit_p_value,
-    verdict_text,
-)
+from ._score import score_tests
+from ._verdict import Diagnosis, EffectRefit, verdict_text
 
 
 def diagnose(
@@ -29,6 +23,7 @@ def diagnose(
     *,
     criteria: Criteria = DEFAULT_CRITERIA,
     plan: RefitPlan | None = DEFAULT_PLAN,
+    calibration: Calibration = DEFAULT_CALIBRATION,
     progress: bool = False,
 ) -> Diagnosis:
     """Find the effect the fitted model misses (see `vfjax.diagnosis`).
@@ -38,18 +33,23 @@ def diagnose(
         recording: the measured GAW.
         candidates: term classes, term instances or `Candidate` objects (default: the
             catalogue, `default_candidates`).
-        criteria: when an effect is needed (`Criteria`: significance level, the share of
-            the error and the noise floors' worth its refit must remove, the score test's
-            variance).
-        plan: how the model is refitted with each candidate and without (`RefitPlan`:
+        criteria: the family-wise significance level and the score test's variance
+            (`Criteria`).
+        plan: how the model is searched with each candidate and without (`RefitPlan`:
             starts, swarm, polish, the confirming refit of the leader); None: score tests
-            only, ranked by p-value.
-        progress: print one line per refit.
+            only, ranked by their (asymptotic, uncalibrated) p-values.
+        calibration: how the refits' statistics are calibrated on null recordings
+            (`Calibration`: most null recordings, batch, interval level, ...).
+        progress: print one line per candidate.
     """
     if not isinstance(criteria, Criteria):
         raise TypeError(f"criteria must be a vfjax.Criteria, got {type(criteria).__name__}")
     if plan is not None and not isinstance(plan, RefitPlan):
         raise TypeError(f"plan must be a vfjax.RefitPlan or None, got {type(plan).__name__}")
+    if not isinstance(calibration, Calibration):
+        raise TypeError(
+            f"calibration must be a vfjax.Calibration, got {type(calibration).__name__}"
+        )
     cands = as_candidates(result.model, candidates)
     if not cands:
         raise ValueError("no candidate effect to test: every one is already in the model")
@@ -57,10 +57,10 @@ def diagnose(
     scores = score_tests(result, recording, cands, variance=criteria.variance)
     by_name = {s.effect: s for s in scores}
     level = criteria.level(len(cands))
-    refits, control, reference, noise_nmse = {}, None, result.nmse, None
-    bandwidth = period_frames(recording)
+    refits, control, cal = {}, None, None
     sse_scale = float(np.sum(np.square(recording.area)))
     if plan is not None:
+        # the search: swarms from the fit and from the score tests' estimates
         anchor = anchor_values(result, recording)
         anchored = [anchor] if anchor else []  # no anchor: no second, identical start
         jobs = [(None, [{}] + anchored)]
@@ -71,11 +71,7 @@ def diagnose(
         control, *fitted_each = refit_each(
             result, recording, jobs, plan, family=cands, anchor=anchor
         )
-        # the confirming refit serves the effect to add; when the error is within
-        # ``noise_multiple`` noise floors, no effect can be needed and it is skipped
-        noise_nmse = _noise_nmse(recording, [result, control, *fitted_each], sse_scale)
-        reference = min(result.nmse, control.nmse)
-        if plan.confirm_iterations is not None and reference > criteria.noise_multiple * noise_nmse:
+        if plan.confirm_iterations is not None:
             control, fitted_each = confirm(
                 result,
                 recording,
@@ -83,53 +79,50 @@ def diagnose(
                 control,
                 fitted_each,
                 plan=plan,
-                criteria=criteria,
+                matters=lambda k: scores[k].p_value < level,
                 anchor=anchor,
                 family=cands,
             )
-            noise_nmse = None  # from the confirmed fits, below
-        reference = min(result.nmse, control.nmse)
+        # the test: calibrated on null recordings of the best fit without any effect
+        base = result if result.nmse <= control.nmse else control
+        found = [dict(f.params) for f in fitted_each]
+        cal = calibrate(base, recording, cands, criteria.alpha, calibration, found)
         if progress:
-            print(f"control (no effect): NMSE {result.nmse:.4g} -> {control.nmse:.4g}")
-        before = result if result.nmse <= control.nmse else control
-        n_eff = effective_frames(recording.area - before.fitted_gaw(recording), bandwidth)
-        for cand, score, fitted in zip(cands, scores, fitted_each):
-            values = {n: fitted.params[n] for n in cand.tested + cand.extra}
-            fall = 1.0 - fitted.nmse / reference if reference > 0 else 0.0
-            p = refit_p_value(
-                reference * sse_scale,
-                fitted.nmse * sse_scale,
-                n_eff,
-                len(result.params) + 1,
-                len(values),
+            print(
+                f"control (no effect): NMSE {result.nmse:.4g} -> {cal.control_nmse:.4g}; "
+                f"{cal.replicates} null recordings"
             )
-            refits[cand.name] = EffectRefit(cand.name, fitted, fitted.nmse, fall, values, p)
+        for k, (cand, fitted) in enumerate(zip(cands, fitted_each)):
+            off = {n: float(type(cand.term).off_values[n]) for n in cand.tested}
+            fall = 1.0 - cal.nmse[k] / cal.control_nmse if cal.control_nmse > 0 else 0.0
+            refits[cand.name] = EffectRefit(
+                cand.name,
+                fitted,
+                cal.nmse[k],
+                fall,
+                cal.values[k],
+                cal.p_values[k],
+                cal.f_p_values[k],
+                cal.marginal_p_values[k],
+                cal.intervals[k],
+                off,
+            )
             if progress:
                 print(
-                    f"{cand.name}: score p = {score.p_value:.2g}, NMSE {reference:.4g} -> "
-                    f"{fitted.nmse:.4g} (refit p = {p:.2g})"
+                    f"{cand.name}: NMSE {cal.control_nmse:.4g} -> {cal.nmse[k]:.4g}, "
+                    f"p = {cal.p_values[k]:.2g} (F test {cal.f_p_values[k]:.2g})"
                 )
-        ranking = sorted(by_name, key=lambda n: (refits[n].nmse, by_name[n].p_value))
+        ranking = sorted(
+            by_name, key=lambda n: (refits[n].p_value, refits[n].f_p_value, refits[n].nmse)
+        )
+        needed = [
+            n for n in ranking if refits[n].p_value <= criteria.alpha and refits[n].identified
+        ]
     else:
         ranking = sorted(by_name, key=lambda n: (by_name[n].p_value, -by_name[n].statistic))
-    if noise_nmse is None:
-        fits = [result] + ([control] if control else []) + [f.result for f in refits.values()]
-        noise_nmse = _noise_nmse(recording, fits, sse_scale)
-
-    def is_needed(n):
-        if evidence(by_name[n], refits.get(n)) >= level:
-            return False
-        if not refits:
-            return True
-        f = refits[n]
-        # it must remove a share of the error, and several noise floors' worth of it: a few
-        # extra parameters fitted to noise and cycle-to-cycle jitter remove less
-        return (
-            f.fall >= criteria.min_fall
-            and reference - f.nmse >= criteria.noise_multiple * noise_nmse
-        )
-
-    needed = [n for n in ranking if is_needed(n)]
+        needed = [n for n in ranking if by_name[n].p_value < level]
+    fits = [result] + ([control] if control else []) + [f.result for f in refits.values()]
+    noise_nmse = _noise_nmse(recording, fits, sse_scale)
     diag = Diagnosis(
         result,
         recording.name,
@@ -144,6 +137,7 @@ def diagnose(
         tuple(cands),
         noise_nmse,
         "",
+        cal,
     )
     return dataclasses.replace(diag, verdict=verdict_text(diag))
 

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from .._fit import FIRST_FIT_RESTARTS, FitResult, Swarm, fit_recording
 from .._fit._engine import DEFAULT_SWARM
 from ..recording import Recording
+from ._calibration import DEFAULT_CALIBRATION, Calibration
 from ._candidates import Candidate
 from ._diagnose import diagnose
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
@@ -81,13 +82,16 @@ def extend_from(
             f"no refit of {name!r} in this diagnosis (no refits, or not a "
             f"candidate); candidates: {sorted(diagnosis.refits)}"
         )
-    start = diagnosis.refits[name].result
+    refit = diagnosis.refits[name]
+    start = refit.result
     (cand,) = [c for c in diagnosis.candidates if c.name == name]
     plan = diagnosis.plan
+    # the search's refit, and the effect at the calibrated refit's values
+    starts = [dict(start.params)] * max(plan.starts - 1, 1) + [{**start.params, **refit.values}]
     (polished,) = refit_each(
         diagnosis.result,
         recording,
-        [(cand, [dict(start.params)] * plan.starts)],
+        [(cand, starts)],
         plan,
         family=diagnosis.candidates,
         warmup=start.sampling.warmup,
@@ -105,6 +109,7 @@ def investigate(
     candidates: Sequence | None = None,
     criteria: Criteria = DEFAULT_CRITERIA,
     plan: RefitPlan = DEFAULT_PLAN,
+    calibration: Calibration = DEFAULT_CALIBRATION,
     swarm: Swarm = DEFAULT_SWARM,
     restarts: int = FIRST_FIT_RESTARTS,
     progress: bool = False,
@@ -120,8 +125,9 @@ def investigate(
         rounds: most effects to add.
         candidates: the candidate effects (default: the catalogue), see `vfjax.diagnose`.
         criteria: when an effect is needed (`Criteria`).
-        plan: the diagnoses' refits (`RefitPlan`); its ``confirm_iterations=None`` skips
-            the confirming refits (a few minutes less per round).
+        plan: the diagnoses' searches (`RefitPlan`); its ``confirm_iterations=None`` skips
+            the confirming refits.
+        calibration: the diagnoses' calibration on null recordings (`Calibration`).
         swarm: the first fit's swarm; each extension runs as many iterations.
         restarts: independent searches of the first fit.
         progress: print what happens.
@@ -140,7 +146,15 @@ def investigate(
             if candidates is None
             else [c for c in candidates if not current.model.has(_kind(c))]
         )
-        d = diagnose(current, recording, remaining, criteria=criteria, plan=plan, progress=progress)
+        d = diagnose(
+            current,
+            recording,
+            remaining,
+            criteria=criteria,
+            plan=plan,
+            calibration=calibration,
+            progress=progress,
+        )
         if progress:
             print(d.verdict)
         if d.best is None or len(done) >= rounds:

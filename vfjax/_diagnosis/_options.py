@@ -9,31 +9,24 @@ class Criteria(eqx.Module):
     """When a candidate effect counts as needed (see `vfjax.diagnose`).
 
     Attributes:
-        alpha: family-wise significance level, Bonferroni-corrected over the candidates and
-            over the two tests (score and refit).
-        min_fall: share of the squared error a needed effect's refit must remove.
-        noise_multiple: noise floors' worth of NMSE (`vfjax.Diagnosis.noise_nmse`) a needed
-            effect's refit must remove at least.
+        alpha: family-wise significance level over the candidates: a needed effect's
+            calibrated p-value (`vfjax.Calibration`) is at most alpha. Without refits, the
+            score tests' p-values are compared with alpha over the number of candidates
+            (Bonferroni; asymptotic, not calibrated).
         variance: variance of the score statistic: ``"hac"`` (autocorrelation-robust,
             Newey-West over one glottal period) or ``"iid"``.
     """
 
     alpha: float = eqx.field(default=0.01, converter=float)
-    min_fall: float = eqx.field(default=0.2, converter=float)
-    noise_multiple: float = eqx.field(default=3.0, converter=float)
     variance: str = "hac"
 
     def level(self, n_candidates: int) -> float:
-        """The significance level of each of ``n_candidates`` candidates (Bonferroni)."""
+        """The score tests' level for each of ``n_candidates`` candidates (Bonferroni)."""
         return self.alpha / max(int(n_candidates), 1)
 
     def __check_init__(self):
         if not 0 < self.alpha < 1:
             raise ValueError(f"Criteria: alpha must lie in (0, 1), got {self.alpha}")
-        if not 0 <= self.min_fall < 1:
-            raise ValueError(f"Criteria: min_fall must lie in [0, 1), got {self.min_fall}")
-        if not self.noise_multiple >= 0:
-            raise ValueError(f"Criteria: noise_multiple must be >= 0, got {self.noise_multiple}")
         if self.variance not in ("hac", "iid"):
             raise ValueError(f"Criteria: variance must be 'hac' or 'iid', got {self.variance!r}")
 
@@ -57,10 +50,9 @@ class RefitPlan(eqx.Module):
             candidate and of the control; None: quick refits only.
         confirm_swarms: independent swarms of the confirming refit, each from one of the
             candidate's best starts, for a candidate of one parameter. For a leader whose
-            quick refit removes ``Criteria.min_fall`` of the error, they double per further
-            parameter and the iterations grow by a quarter per further parameter (the
-            basins of interacting parameters, such as a modulation's frequency and phase,
-            are narrow).
+            score test is significant, they double per further parameter and the
+            iterations grow by a quarter per further parameter (the basins of interacting
+            parameters, such as a modulation's frequency and phase, are narrow).
         batch: fits per compiled batch (the programs are shared by batches up to it).
     """
 

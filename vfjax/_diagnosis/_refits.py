@@ -213,9 +213,10 @@ def anchor_values(result: FitResult, recording: Recording) -> dict:
     return {n: float(start[n]) for n in result.params if n in start}
 
 
-def confirm(result, recording, jobs, control, fitted, *, plan, criteria, anchor, family):
+def confirm(result, recording, jobs, control, fitted, *, plan, matters, anchor, family):
     """Refit the leading candidate (the lowest quick-refit error) and the control again with
-    a larger search (`RefitPlan.confirm_search`: more swarms and iterations), from their
+    a larger search (`RefitPlan.confirm_search`: more swarms and iterations, scaled by the
+    leader's dimension when ``matters(index)`` says so), from their
     quick refits and from the jobs' anchored starts; keep each one's better fit. The control
     gets the same search as the candidate, so that the fall it is measured against is not the
     product of a bigger search alone.
@@ -226,9 +227,7 @@ def confirm(result, recording, jobs, control, fitted, *, plan, criteria, anchor,
     start from those. Returns (control, fitted) with the leader's refit replaced."""
     top = min(range(len(fitted)), key=lambda i: error(fitted[i]))
     (_, control_starts), (cand, cand_starts) = jobs[0], jobs[1 + top]
-    reference = min(error(result), error(control))
-    matters = error(fitted[top]) <= (1.0 - criteria.min_fall) * reference
-    swarms, iterations = plan.confirm_search(len(cand.tested + cand.extra), matters)
+    swarms, iterations = plan.confirm_search(len(cand.tested + cand.extra), matters(top))
     warmup = max(result.sampling.warmup, float(type(cand.term).min_warmup))
     common = {"family": family, "anchor": anchor, "warmup": warmup}
     quick = (control, fitted[top])

@@ -222,8 +222,8 @@ def _candidate_jobs(model, cands) -> _Jobs | None:
 
 
 def period_frames(recording) -> int:
-    """One glottal period in frames: the lag window of the robust variance and of
-    `effective_frames` (a tenth of the frame rate if no f0 is found)."""
+    """One glottal period in frames: the lag window of the robust variance (a tenth of the
+    frame rate if no f0 is found)."""
     f0 = fundamental_frequency(recording.area, recording.fps)
     return max(1, round(recording.fps / f0)) if np.isfinite(f0) else 10
 

@@ -2,9 +2,6 @@
 
 import dataclasses
 
-import numpy as np
-from scipy import stats
-
 from .._fit import FitResult
 from ..compare import Comparison
 from ._options import Criteria, RefitPlan
@@ -13,16 +10,23 @@ from ._score import EffectScore
 
 @dataclasses.dataclass(frozen=True)
 class EffectRefit:
-    """The refit with one candidate effect (the confirming refit's, for the leader).
+    """The refit with one candidate effect, and its calibrated test.
 
     Attributes:
         effect: the effect's name.
-        result: the refit (`FitResult`; its model holds the effect).
-        nmse: the error it reaches.
-        fall: share of the current squared error it removes, 1 - nmse / nmse_before.
-        values: the effect's fitted parameters.
-        p_value: F test of the error fall against the control refit, on the effective
-            number of independent frames (`effective_frames`).
+        result: the search's refit (`FitResult`, swarm and polish; its model holds the
+            effect), where an extension starts.
+        nmse: the error of the calibrated refit (`vfjax.Calibration`: from the control's
+            optimum, never above it).
+        fall: share of the control's squared error it removes, 1 - nmse / control NMSE.
+        values: the effect's fitted parameters (the calibrated refit's).
+        p_value: family-wise p-value, calibrated on null recordings of the fitted model.
+        f_p_value: the F test's p-value of the fall (uncalibrated: the standardisation that
+            the calibration compares across candidates).
+        marginal_p_value: the calibrated p-value against this candidate's null alone.
+        interval: ``{parameter: (low, high)}`` at ``Calibration.interval`` (a parametric
+            bootstrap), for a significant effect; None otherwise.
+        off_values: the values of its tested parameters that switch it off.
     """
 
     effect: str
@@ -31,6 +35,20 @@ class EffectRefit:
     fall: float
     values: dict
     p_value: float
+    f_p_value: float
+    marginal_p_value: float
+    interval: dict | None
+    off_values: dict
+
+    @property
+    def identified(self) -> bool:
+        """Whether the interval of every tested parameter excludes its off-value."""
+        if self.interval is None:
+            return False
+        return all(
+            not (self.interval[n][0] <= v <= self.interval[n][1])
+            for n, v in self.off_values.items()
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +72,8 @@ class Diagnosis:
         noise_nmse: the NMSE that measurement noise alone would leave (estimated from the
             GAW's frame-to-frame differences), a floor no model can beat.
         verdict: the conclusion in words.
+        calibrated: the calibration's record (`vfjax.Calibrated`: null recordings, their
+            variability, p-values), None without refits.
     """
 
     result: FitResult
@@ -69,11 +89,13 @@ class Diagnosis:
     candidates: tuple
     noise_nmse: float
     verdict: str
+    calibrated: object = None
 
     @property
     def level(self) -> float:
-        """The significance level of each candidate: ``criteria.alpha`` over their number."""
-        return self.criteria.level(len(self.scores))
+        """The level each candidate's evidence is compared with: ``criteria.alpha`` for the
+        calibrated (family-wise) p-values, alpha over the candidates for score tests alone."""
+        return self.criteria.alpha if self.refits else self.criteria.level(len(self.scores))
 
     @property
     def nmse_before(self) -> float:
@@ -106,45 +128,33 @@ class Diagnosis:
                     "one_sided": s.one_sided,
                     "nmse_after": f.nmse if f else None,
                     "fall": f.fall if f else None,
-                    "refit_p_value": f.p_value if f else None,
+                    "refit_f_p_value": f.f_p_value if f else None,
+                    "calibrated_p_value": f.p_value if f else None,
                     "evidence": evidence(s, f),
-                    "significant": evidence(s, f) < self.level,
+                    "significant": evidence(s, f) <= self.level,
                     "values": f.values if f else {},
+                    "interval": f.interval if f else None,
                     "needed": name in self.needed,
                 }
             )
         return rows
 
 
-def effective_frames(residual: np.ndarray, bandwidth: int) -> float:
-    """Frames' worth of independent information in a correlated residual: n over the
-    long-run variance ratio 1 + 2 sum_l w_l rho_l (Bartlett weights, lags up to
-    ``bandwidth``), kept within [n / (bandwidth + 1), n]."""
-    r = np.asarray(residual, dtype=float) - np.mean(residual)
-    n, c0 = r.size, float(r @ r)
-    if c0 == 0:
-        return float(n)
-    ratio = 1.0 + 2.0 * sum(
-        (1.0 - lag / (bandwidth + 1.0)) * float(r[lag:] @ r[:-lag]) / c0
-        for lag in range(1, min(bandwidth, n - 1) + 1)
-    )
-    return float(np.clip(n / max(ratio, 1e-12), n / (bandwidth + 1.0), n))
-
-
-def refit_p_value(sse0, sse1, n_eff, n_fitted, n_added):
-    """F test of the refit's error fall, on ``n_eff`` effective frames."""
-    dof = n_eff - n_fitted - n_added
-    if sse1 <= 0 or dof <= 0:
-        return 0.0 if sse1 < sse0 else 1.0
-    f = max(sse0 - sse1, 0.0) / n_added / (sse1 / dof)
-    return float(stats.f.sf(f, n_added, dof))
-
-
 def evidence(score: EffectScore, refit: "EffectRefit | None") -> float:
-    """Combined p-value: the smaller of the score test's and the refit's, doubled."""
-    if refit is None:
-        return score.p_value
-    return min(1.0, 2.0 * min(score.p_value, refit.p_value))
+    """The p-value the verdict reads: the refit's calibrated one, or the score test's
+    (asymptotic) without refits."""
+    return score.p_value if refit is None else refit.p_value
+
+
+def _sizes(f: EffectRefit) -> str:
+    parts = []
+    for k, v in f.values.items():
+        text = f"{k} = {v:.4g}"
+        if f.interval and k in f.interval:
+            lo, hi = f.interval[k]
+            text += f" [{lo:.3g}, {hi:.3g}]"
+        parts.append(text)
+    return ", ".join(parts)
 
 
 def verdict_text(d: Diagnosis) -> str:
@@ -156,55 +166,52 @@ def verdict_text(d: Diagnosis) -> str:
             f"The fit was not the best the model can do: a refit without any effect "
             f"reaches NMSE {d.control.nmse:.3%} (was {d.result.nmse:.3%})"
         )
+    cal = d.calibrated
+    against = (
+        f" against {cal.replicates} null recordings of the fitted model" if cal is not None else ""
+    )
     if d.best is not None:
         f = d.refits.get(d.best)
-        text = f"{d.best} is missing (evidence p = {evidence(d.scores[d.best], f):.2g})"
+        p = evidence(d.scores[d.best], f)
+        text = f"{d.best} is missing (p = {p:.2g}{against})"
         if f is not None:
-            values = ", ".join(f"{k} = {v:.4g}" for k, v in f.values.items())
             text += (
-                f": adding it lowers the NMSE from {before:.3%} to {f.nmse:.3%} "
-                f"({f.fall:.0%} of the squared error; {values})"
+                f": adding it lowers the NMSE from {cal.control_nmse:.3%} to {f.nmse:.3%} "
+                f"({f.fall:.0%} of the squared error; {_sizes(f)}"
+                + (f", {cal.interval_level:.0%} intervals)" if f.interval else ")")
             )
-            if f.nmse > 2.0 * d.noise_nmse and f.nmse > 0.002:
+            if d.noise_nmse > 0:
                 text += (
-                    f". The error left is above the noise ({floor}): something else is "
-                    "still missing; diagnose the extended fit for a second round"
+                    f". The error left is {f.nmse / d.noise_nmse:.1f} times the noise floor; "
+                    "diagnose the extended fit for a second round"
                 )
         lines.append(text)
         return ". ".join(lines) + "."
-    significant = [n for n in d.ranking if evidence(d.scores[n], d.refits.get(n)) < d.level]
-    f = d.refits.get(significant[0]) if significant else None
-    if before <= 2.0 * d.noise_nmse:
+    significant = [n for n in d.ranking if evidence(d.scores[n], d.refits.get(n)) <= d.level]
+    if significant and d.refits:
+        n = significant[0]
+        f = d.refits[n]
         lines.append(
-            f"No effect is needed: the NMSE {before:.3%} is at the noise level "
-            f"({floor}) and no candidate removes {d.criteria.min_fall:.0%} of it"
-        )
-    elif significant and f is None:
-        lines.append(
-            f"{significant[0]} is significant (score test p = "
-            f"{d.scores[significant[0]].p_value:.2g}); run the refits to see how "
-            "much of the error it removes"
+            f"No catalogue effect is needed: {n} is detectable (p = {f.p_value:.2g}{against}) "
+            f"but not identifiable: its fitted size's interval includes its off-value "
+            f"({_sizes(f)}; NMSE {before:.3%}, {floor})"
         )
     elif significant:
-        floors = d.criteria.noise_multiple
-        why = (
-            f"removes only {f.fall:.0%} of the squared error"
-            if f.fall < d.criteria.min_fall
-            else f"removes only {before - f.nmse:.3%} of NMSE, less than {floors:g} "
-            f"noise floors ({floors * d.noise_nmse:.3%}): no more than fitting "
-            "noise and cycle-to-cycle variability would"
-        )
         lines.append(
-            f"No catalogue effect is needed: {significant[0]} is statistically "
-            f"detectable (p = {evidence(d.scores[significant[0]], f):.2g}) but {why} "
-            f"(NMSE {before:.3%}, {floor})"
+            f"{significant[0]} is significant (score test p = "
+            f"{d.scores[significant[0]].p_value:.2g}, not calibrated); run the refits to "
+            "calibrate it and see how much of the error it removes"
         )
     else:
+        smallest = min(
+            (evidence(d.scores[n], d.refits.get(n)) for n in d.ranking), default=float("nan")
+        )
         lines.append(
-            f"No candidate effect is significant (NMSE {before:.3%}, {floor}): the "
-            "misfit left is not one the catalogue describes"
+            f"No candidate effect is needed: none is significant{against} with the "
+            f"recording's noise and cycle-to-cycle variability (smallest p = {smallest:.2g}; "
+            f"NMSE {before:.3%}, {floor})"
         )
     failures = d.comparison.failures()
-    if failures and before > 2.0 * d.noise_nmse:
+    if failures:
         lines.append("Where the model fails: " + "; ".join(failures[:3]))
     return ". ".join(lines) + "."
