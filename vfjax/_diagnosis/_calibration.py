@@ -376,7 +376,8 @@ def _mesh(n_recordings: int):
 def _start_values(cand: Candidate, model) -> list[dict]:
     """The candidate's fixed starts: its tested parameters a step off their off-values (a
     third of their search scale; two-sided single parameters at the off-value), over a
-    lattice of four grid settings and its directions (a sine/cosine pair: two phases)."""
+    lattice of four grid settings (at its first direction: a modulation's phase then moves
+    freely, its depth being off zero)."""
 
     def scale(name):
         return (search_range(model, name) or (0.0, 1.0, 0.1))[2]
@@ -386,15 +387,16 @@ def _start_values(cand: Candidate, model) -> list[dict]:
     if len(cand.grid) == 1 and len(cand.directions) == 1:
         return [{**cand.grid[0], **cand.directions[0], **tested}]
     grid = [cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, min(4, len(cand.grid)))]
-    return [{**g, **d, **tested} for g in grid for d in cand.directions]
+    return [{**g, **cand.directions[0], **tested} for g in grid]
 
 
 def refit_jobs(result: FitResult, recording: Recording, cands, found=None) -> _Jobs:
     """The statistic's refits of ``result`` on ``recording``: its model extended by every
     candidate (held at their off-values), the control, and each candidate's starts: the
-    fixed lattice (`_start_values`) and one more, ``found[k]`` (values of fitted and
-    effect parameters, e.g. where a search on the recording ended; the lattice's first
-    start without one), the same for every recording the statistic is computed on."""
+    fixed lattice (`_start_values`) and, given ``found``, one more per candidate,
+    ``found[k]`` (values of fitted and effect parameters, e.g. where a search on the
+    recording ended), the same for every recording the statistic is computed on. (A start
+    chosen on the recording favours it over the null recordings: `diagnose` gives none.)"""
     wide = extended(result.model, cands)
     if wide is None:
         raise ValueError("the candidates' parameter names clash: calibrate them one by one")
@@ -427,8 +429,8 @@ def refit_jobs(result: FitResult, recording: Recording, cands, found=None) -> _J
     for k, c in enumerate(cands):
         own = set(fitted) | set(c.tested + c.extra)
         lattice = _start_values(c, wide)
-        extra = (found[k] if found is not None and found[k] else None) or lattice[0]
-        for s in lattice + [extra]:
+        extra = [] if found is None else [found[k] or lattice[0]]
+        for s in lattice + extra:
             starts.append(coords(s))
             frees.append([1.0 if n in own else 0.0 for n in names])
             owner.append(k)

@@ -85,8 +85,7 @@ def diagnose(
             )
         # the test: calibrated on null recordings of the best fit without any effect
         base = result if result.nmse <= control.nmse else control
-        found = [dict(f.params) for f in fitted_each]
-        cal = calibrate(base, recording, cands, criteria.alpha, calibration, found)
+        cal = calibrate(base, recording, cands, criteria.alpha, calibration)
         if progress:
             print(
                 f"control (no effect): NMSE {result.nmse:.4g} -> {cal.control_nmse:.4g}; "
