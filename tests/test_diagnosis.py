@@ -153,6 +153,7 @@ def _shared(shared_dir, name):
     return rec, answer, result, vfjax.diagnose(result, rec)
 
 
+@pytest.mark.xdist_group("diagnosis")  # one worker compiles the calibration's programs once
 def test_shared_no_effect_case_flags_nothing(shared_dir):
     _, answer, _, d = _shared(shared_dir, "syn_base")
     assert answer["hidden_effects"] == []
@@ -172,6 +173,7 @@ def test_shared_no_effect_case_flags_nothing(shared_dir):
     assert all(f.nmse <= cal.control_nmse for f in d.refits.values())
 
 
+@pytest.mark.xdist_group("diagnosis")
 def test_shared_gap_case(shared_dir):
     rec, answer, result, d = _shared(shared_dir, "syn_gap")
     assert d.ranking[0] == "GlottalGap" and d.best == "GlottalGap", d.verdict
