@@ -23,6 +23,7 @@ import numpy as np
 from scipy import stats
 
 from .._fit import FitResult, search_range
+from .._fit._polish import jacobian_columns
 from .._fit._problem import prepare
 from .._sampling import length_bucket
 from ..compare import noise_level
@@ -92,8 +93,8 @@ class Variability:
         jitter, shimmer: the recording's local jitter and shimmer (fractions).
         timing_sd: standard deviation of the timing offsets (s).
         amplitude_sd: standard deviation of the amplitude factors.
-        control_nmse: the control refit's NMSE on the recording.
-        simulated_control_nmse: its mean on the null recordings.
+        simulated_control_nmse: the control refit's mean NMSE on the null recordings (on
+            the recording: `Calibrated.control_nmse`).
         noise_sd: standard deviation of the white measurement noise (the GAW's unit).
         period: the fitted model's cycle length (s), the slot of the jitter factors.
     """
@@ -102,7 +103,6 @@ class Variability:
     shimmer: float
     timing_sd: float
     amplitude_sd: float
-    control_nmse: float
     simulated_control_nmse: float
     noise_sd: float
     period: float
@@ -161,13 +161,17 @@ class _NullSource:
         self.clean = np.maximum(clean[0], 0.0)
         self.rng = np.random.default_rng(seed)
 
-    def draw(self, n: int, timing_sd: float, amplitude_sd: float, model=None) -> np.ndarray:
+    def draw(
+        self, n: int, timing_sd: float, amplitude_sd: float, model=None, shift=None
+    ) -> np.ndarray:
         """``n`` recordings' areas (n, frames bucket), zero beyond the recording, with timing
-        offsets of deviation ``timing_sd`` (s) and amplitude factors of ``amplitude_sd``."""
+        offsets of deviation ``timing_sd`` (s) and amplitude factors of ``amplitude_sd``;
+        of ``model`` (with the source's jitter terms last) at ``shift`` (s) if given."""
         shape = (n, self.n_slots)
         offsets = timing_sd * self.rng.standard_normal(shape)
         factors = np.clip(1.0 + amplitude_sd * self.rng.standard_normal(shape), 0.05, None)
         base = self.model if model is None else model
+        shift = self.shift if shift is None else jnp.asarray(shift)
         # simulated _DRAW_BATCH at a time: one compiled program for every count
         pad = -n % _DRAW_BATCH
         offsets = np.concatenate([offsets, np.zeros((pad, self.n_slots))])
@@ -178,7 +182,7 @@ class _NullSource:
                     _jittered_gaws(
                         self.simulator,
                         base,
-                        self.shift,
+                        shift,
                         jnp.asarray(offsets[i : i + _DRAW_BATCH]),
                         jnp.asarray(factors[i : i + _DRAW_BATCH]),
                     )
@@ -195,18 +199,23 @@ class _NullSource:
         return noisy
 
 
+def _mean_measure(source, areas: np.ndarray, measure, width: int) -> np.ndarray:
+    """The mean of ``measure(area)`` (``width`` numbers) over simulated recordings (rows),
+    those whose simulation and measure are finite; NaN where none is."""
+    rec = source.recording
+    found = [measure(a[: rec.n_frames]) for a in areas if np.all(np.isfinite(a))]
+    found = [f for f in found if np.all(np.isfinite(f))]
+    return np.mean(found, axis=0) if found else np.full(width, math.nan)
+
+
 def _jitter_shimmer(source, areas: np.ndarray) -> tuple[float, float]:
     """Mean local jitter and shimmer of simulated recordings (rows)."""
-    rec = source.recording
-    found = []
-    for a in areas:
-        if np.all(np.isfinite(a)):
-            d = describe(a[: rec.n_frames], rec.fps)
-            if np.isfinite(d.jitter) and np.isfinite(d.shimmer):
-                found.append((d.jitter, d.shimmer))
-    if not found:
-        return math.nan, math.nan
-    return tuple(float(x) for x in np.mean(found, axis=0))
+
+    def measure(a):
+        d = describe(a, source.recording.fps)
+        return float(d.jitter), float(d.shimmer)
+
+    return tuple(float(x) for x in _mean_measure(source, areas, measure, 2))
 
 
 #: Deviations of the timing offsets (s) and amplitude factors tried first.
@@ -264,11 +273,14 @@ def cycle_deviation(area, fitted, fps: float) -> float:
 
 
 def _deviation(source, areas) -> float:
+    """Mean `cycle_deviation` of simulated recordings (rows) about the source's clean GAW."""
     rec = source.recording
     clean = source.clean[: rec.n_frames]
-    found = [cycle_deviation(x[: rec.n_frames], clean, rec.fps) for x in areas]
-    found = [f for f in found if np.isfinite(f)]
-    return float(np.mean(found)) if found else math.nan
+
+    def measure(a):
+        return (cycle_deviation(a, clean, rec.fps),)
+
+    return float(_mean_measure(source, areas, measure, 1)[0])
 
 
 def variability_size(source: "_NullSource", fitted, kind, n: int = 8) -> tuple[float, float]:
@@ -303,7 +315,6 @@ class _Jobs:
     frees: jax.Array  # (1 + jobs, n_params) fitted parameters of the control and each job
     bases: jax.Array  # (1 + jobs, columns, n_y) each refit's search directions
     owner: tuple  # candidate index of each job
-    names: tuple  # the wide problem's parameter names
 
 
 def levenberg_marquardt(residual, y0, basis, steps: int):
@@ -317,20 +328,13 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     Gauss-Newton step with Marquardt's scaling, one trial evaluation; the damping falls
     by 3 after a success and rises by 4 after a failure."""
 
-    def jac(y):
-        def along(d):
-            return jax.jvp(residual, (y,), (d,))
-
-        r, cols = jax.vmap(along, out_axes=(None, 1))(basis)
-        return r, cols
-
     r0 = residual(y0)
     c0 = jnp.sum(r0**2)
     c0 = jnp.where(jnp.isfinite(c0), c0, jnp.inf)
 
     def step(carry, _):
         y, c, damping = carry
-        r, j = jac(y)
+        r, j = jacobian_columns(residual, y, basis)
         h = j.T @ j
         g = j.T @ r
         d = jnp.diag(h)
@@ -409,13 +413,12 @@ def _start_values(cand: Candidate, model) -> list[dict]:
     return [{**g, **d, **tested} for g in grid for d in cand.directions]
 
 
-def refit_jobs(result: FitResult, recording: Recording, cands, found=None) -> _Jobs:
+def refit_jobs(result: FitResult, recording: Recording, cands) -> _Jobs:
     """The statistic's refits of ``result`` on ``recording``: its model extended by every
-    candidate (held at their off-values), the control, and each candidate's starts: the
-    fixed lattice (`_start_values`) and, given ``found``, one more per candidate,
-    ``found[k]`` (values of fitted and effect parameters, e.g. where a search on the
-    recording ended), the same for every recording the statistic is computed on. (A start
-    chosen on the recording favours it over the null recordings: `diagnose` gives none.)"""
+    candidate (held at their off-values), the control, and each candidate's starts, the
+    fixed lattice of `_start_values`, the same for every recording the statistic is
+    computed on (a start chosen on the recording would favour it over the null
+    recordings)."""
     wide = extended(result.model, cands)
     if wide is None:
         raise ValueError("the candidates' parameter names clash: calibrate them one by one")
@@ -447,9 +450,7 @@ def refit_jobs(result: FitResult, recording: Recording, cands, found=None) -> _J
     starts, owner = [], []
     for k, c in enumerate(cands):
         own = set(fitted) | set(c.tested + c.extra)
-        lattice = _start_values(c, wide)
-        extra = [] if found is None else [found[k] or lattice[0]]
-        for s in lattice + extra:
+        for s in _start_values(c, wide):
             starts.append(coords(s))
             frees.append([1.0 if n in own else 0.0 for n in names])
             owner.append(k)
@@ -468,7 +469,6 @@ def refit_jobs(result: FitResult, recording: Recording, cands, found=None) -> _J
         jnp.asarray(np.array(frees)),
         jnp.asarray(bases),
         tuple(owner),
-        names,
     )
 
 
@@ -513,11 +513,6 @@ def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray
         f = np.maximum(control - refit, 0.0) / dofs / (refit / resid)
     f = np.where(np.isfinite(f), f, np.where(refit < control, np.inf, 0.0))
     return stats.f.sf(f, dofs, resid)
-
-
-def noise_sd(result: FitResult, recording: Recording) -> float:
-    """White measurement noise on the recording (its unit), from the fit's residual."""
-    return noise_level(recording.area, result.fitted_gaw(recording))
 
 
 # ------------------------------------------------------------------------------ calibration
@@ -574,7 +569,6 @@ def calibrate(
     cands,
     alpha: float,
     calibration: Calibration = DEFAULT_CALIBRATION,
-    found=None,
 ) -> Calibrated:
     """Calibrate each candidate's refit statistic on null recordings of ``result``.
 
@@ -582,17 +576,17 @@ def calibrate(
     with the recording itself); once every candidate's family-wise p-value exceeds
     ``alpha`` whatever the remaining ones show, no more are simulated. The refits simulate
     from the longest warm-up that a candidate needs (``min_warmup``: a slow modulation's
-    history must be in the state at the first frame). ``found``: per candidate, a start of
-    its refit found by a search on the recording (`refit_jobs`).
+    history must be in the state at the first frame).
 
     For each candidate whose p-value is at most ``alpha``, the interval of its parameters
     (a parametric bootstrap: ``calibration.interval_replicates`` recordings simulated from
     the model with the effect at its fitted values, with the same variability and noise,
     refitted alike; the estimate plus or minus the normal quantile times their spread)."""
     cands = list(cands)
-    jobs = refit_jobs(result, recording, cands, found)
-    period = 1.0 / fundamental_frequency(result.fitted_gaw(recording), recording.fps)
-    noise = noise_sd(result, recording)
+    jobs = refit_jobs(result, recording, cands)
+    fitted = result.fitted_gaw(recording)
+    period = 1.0 / fundamental_frequency(fitted, recording.fps)
+    noise = noise_level(recording.area, fitted)
     model, shift = jobs.problem.unpack(jobs.y0)
     source = _NullSource(
         jobs.problem,
@@ -610,7 +604,7 @@ def calibrate(
     steps = calibration.steps
     if calibration.variability:
         jitter, shimmer, sd_t, sd_a = variability_kind(source)
-        sd_t, sd_a = variability_size(source, result.fitted_gaw(recording), (sd_t, sd_a))
+        sd_t, sd_a = variability_size(source, fitted, (sd_t, sd_a))
     else:
         jitter = shimmer = sd_t = sd_a = 0.0
     rows = [observed, source.draw(size - 1, sd_t, sd_a)]
@@ -646,7 +640,6 @@ def calibrate(
         shimmer,
         sd_t,
         sd_a,
-        control_nmse,
         float(np.nanmean(controls)),
         noise,
         period,
@@ -673,12 +666,7 @@ def _interval(jobs, source, y, k, cand, sds, calibration) -> dict:
     model, shift = jobs.problem.unpack(jnp.asarray(y))
     model = model.with_term(source.model.terms[-2]).with_term(source.model.terms[-1])
     size, n = calibration.batch, calibration.interval_replicates
-    saved = source.shift
-    source.shift = jnp.asarray(shift)
-    try:
-        draws = [source.draw(size, *sds, model=model) for _ in range(-(-n // size))]
-    finally:
-        source.shift = saved
+    draws = [source.draw(size, *sds, model=model, shift=shift) for _ in range(-(-n // size))]
     values = []
     for data in draws:
         _, _, yb, _ = run_statistics(jobs, data, calibration.steps)

@@ -20,12 +20,17 @@ def residual(y, problem: Problem):
     return problem.residual(y)
 
 
+def jacobian_columns(fn, y, basis):
+    """``fn(y)`` and its derivatives along the rows of ``basis`` as columns (one batched
+    forward-mode jvp): (residual, (len(residual), len(basis)))."""
+    return jax.vmap(lambda t: jax.jvp(fn, (y,), (t,)), out_axes=(None, 1))(basis)
+
+
 @residual.defjvp
 def _residual_jvp(primals, tangents):
     y, problem = primals
     dy, _ = tangents
-    basis = jnp.eye(y.shape[0], dtype=y.dtype)
-    r, jac = jax.vmap(lambda t: jax.jvp(problem.residual, (y,), (t,)), out_axes=(None, 1))(basis)
+    r, jac = jacobian_columns(problem.residual, y, jnp.eye(y.shape[0], dtype=y.dtype))
     return r, jac @ dy
 
 

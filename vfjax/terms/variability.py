@@ -66,10 +66,23 @@ def _random_factors(relative_sd: float, period: float, duration: float, seed: in
     """Independent factors 1 + relative_sd * N(0, 1), one per slot of ``period`` seconds over
     ``duration`` seconds (or ``n`` of them), kept above 0.05."""
     check_nonnegative("relative_sd (cycle-to-cycle variability)", relative_sd)
+    factors = 1.0 + relative_sd * _standard_normal(period, duration, seed, n)
+    return np.clip(factors, 0.05, None)
+
+
+def _standard_normal(period: float, duration: float, seed: int, n=None) -> np.ndarray:
+    """Seeded standard normal draws, one per slot of ``period`` seconds over ``duration``
+    seconds (or ``n`` of them)."""
     check_positive("period", period, "s")
     n = int(np.ceil(duration / period)) + 1 if n is None else int(n)
-    factors = 1.0 + relative_sd * np.random.default_rng(seed).standard_normal(n)
-    return np.clip(factors, 0.05, None)
+    return np.random.default_rng(seed).standard_normal(n)
+
+
+def _at_time(values, slot, t):
+    """Per-slot ``values`` as a continuous function of time ``t`` (s): value k at the middle
+    of slot k, linear in between, held at the first and last (the warm-up uses the first)."""
+    centres = (jnp.arange(values.shape[0]) + 0.5) * slot
+    return jnp.interp(t, centres, values)
 
 
 class _SlotFactors(eqx.Module):
@@ -92,10 +105,8 @@ class _SlotFactors(eqx.Module):
         return cls(_random_factors(relative_sd, period, duration, seed, n), float(period))
 
     def value(self, t):
-        """The factors as a continuous function of time ``t`` (s): factor k at the middle of
-        slot k, linear in between, held at the first and last (the warm-up uses the first)."""
-        centres = (jnp.arange(self.factors.shape[0]) + 0.5) * self.slot
-        return jnp.interp(t, centres, self.factors)
+        """The factor at time ``t`` (s), interpolated between slots (`_at_time`)."""
+        return _at_time(self.factors, self.slot, t)
 
 
 class StiffnessJitter(_SlotFactors, AbstractForce):
@@ -177,11 +188,8 @@ class TimingJitter(AbstractObservation):
         """Independent Gaussian offsets of standard deviation ``sd`` (s), one per slot of
         ``period`` seconds covering ``duration`` seconds (or ``n`` slots), seeded."""
         check_nonnegative("sd (timing jitter)", sd, "s")
-        check_positive("period", period, "s")
-        n = int(np.ceil(duration / period)) + 1 if n is None else int(n)
-        return cls(sd * np.random.default_rng(seed).standard_normal(n), float(period))
+        return cls(sd * _standard_normal(period, duration, seed, n), float(period))
 
     def observe(self, t, area, displacement_at, length) -> Array:
-        centres = (jnp.arange(self.offsets.shape[0]) + 0.5) * self.slot
-        delta = jnp.interp(t, centres, self.offsets)
+        delta = _at_time(self.offsets, self.slot, t)
         return area + 2.0 * length * (displacement_at(t + delta) - displacement_at(t))
