@@ -118,7 +118,6 @@ def test_confirming_search_grows_with_the_candidates_parameters():
     plan = vfjax.RefitPlan(confirm_swarms=3, confirm_iterations=100)
     assert plan.confirm_search(1) == (3, 100)
     assert plan.confirm_search(3) == (12, 150)  # a modulation: depth, frequency, phase
-    assert plan.confirm_search(3, scale=False) == (3, 100)
 
 
 def test_bad_arguments_are_refused(shared_dir):

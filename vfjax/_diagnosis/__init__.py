@@ -27,9 +27,9 @@ off, or a user's own term), two questions:
    (a few starts, one swarm each), the control (the model alone) the same way; every search
    refit of a diagnosis runs through one compiled program, the fitted model extended by
    every candidate, each swarm holding the candidates not its own at their off-values
-   (`refit_each`). The leader and the control are then searched once more with more swarms
-   and iterations (``RefitPlan.confirm_iterations``). These refits are where an extension
-   starts (`extend_from`).
+   (`refit_each`). These refits are where an extension starts (`extend_from`). The control
+   is searched once more with more swarms and iterations (``RefitPlan.confirm_iterations``),
+   and so is the effect to add (the most significant, once the test below finds one).
 
    The test (`Calibration`, a parametric bootstrap): from the best fit without any effect,
    null recordings are simulated, each the fitted model with the recording's white noise and

@@ -46,7 +46,8 @@ class Calibration(eqx.Module):
             one or two batches.
         interval: level of the confidence interval of a needed effect's size.
         interval_replicates: recordings simulated from the model with the effect, refitted
-            for its interval (a parametric bootstrap of the estimate).
+            for its interval (a parametric bootstrap of the estimate); with the recording
+            itself they fill batches of ``batch`` (15: one batch).
         steps: Levenberg-Marquardt steps of each of the statistic's refits (a few suffice:
             they start at the fit's optimum, the null recordings' truth).
         variability: simulate the recording's cycle-to-cycle variability in the null
@@ -57,7 +58,7 @@ class Calibration(eqx.Module):
     replicates: int = eqx.field(default=111, converter=int)
     batch: int = eqx.field(default=16, converter=int)
     interval: float = eqx.field(default=0.95, converter=float)
-    interval_replicates: int = eqx.field(default=16, converter=int)
+    interval_replicates: int = eqx.field(default=15, converter=int)
     steps: int = eqx.field(default=10, converter=int)
     variability: bool = True
     seed: int = eqx.field(default=0, converter=int)
@@ -413,6 +414,19 @@ def _start_values(cand: Candidate, model) -> list[dict]:
     return [{**g, **d, **tested} for g in grid for d in cand.directions]
 
 
+def _coordinates(problem, values: dict, fill: float = math.nan) -> np.ndarray:
+    """The search coordinates of parameter ``values`` in ``problem`` (``fill`` for those
+    not given; 0 is the problem's reference point)."""
+    z = np.full(len(problem.names), fill)
+    for i, n in enumerate(problem.names):
+        if n in values:
+            if problem.linear[i]:
+                z[i] = (values[n] - float(problem.reference[i])) / float(problem.scale[i])
+            else:
+                z[i] = math.log(values[n] / float(problem.reference[i]))
+    return z
+
+
 def refit_jobs(result: FitResult, recording: Recording, cands) -> _Jobs:
     """The statistic's refits of ``result`` on ``recording``: its model extended by every
     candidate (held at their off-values), the control, and each candidate's starts, the
@@ -433,14 +447,7 @@ def refit_jobs(result: FitResult, recording: Recording, cands) -> _Jobs:
     names = problem.names
 
     def coords(values):
-        y = np.full(len(names) + 1 + problem.fit_s, np.nan)
-        for i, n in enumerate(names):
-            if n in values:
-                if problem.linear[i]:
-                    y[i] = (values[n] - float(problem.reference[i])) / float(problem.scale[i])
-                else:
-                    y[i] = math.log(values[n] / float(problem.reference[i]))
-        return y
+        return np.r_[_coordinates(problem, values), np.full(1 + problem.fit_s, np.nan)]
 
     # the fitted point, its time shift found afresh on the grid of shifts (a longer warm-up
     # than the fit's moves the phase of the cycle at the first frame), S projected
@@ -524,7 +531,8 @@ class Calibrated:
         candidates: the candidates' names, in order.
         control_nmse: the control refit's NMSE on the recording.
         nmse: each candidate's refit NMSE on the recording (never above the control's).
-        values: each candidate's fitted parameters on the recording.
+        values: each candidate's fitted parameters on the recording (refined, for those
+            with an interval).
         f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
         p_values: family-wise p-values: (1 + null recordings whose smallest F-test p-value
             over all candidates is at most this candidate's) / (1 + null recordings).
@@ -569,6 +577,7 @@ def calibrate(
     cands,
     alpha: float,
     calibration: Calibration = DEFAULT_CALIBRATION,
+    estimates=None,
 ) -> Calibrated:
     """Calibrate each candidate's refit statistic on null recordings of ``result``.
 
@@ -578,10 +587,15 @@ def calibrate(
     from the longest warm-up that a candidate needs (``min_warmup``: a slow modulation's
     history must be in the state at the first frame).
 
-    For each candidate whose p-value is at most ``alpha``, the interval of its parameters
-    (a parametric bootstrap: ``calibration.interval_replicates`` recordings simulated from
-    the model with the effect at its fitted values, with the same variability and noise,
-    refitted alike; the estimate plus or minus the normal quantile times their spread)."""
+    For each candidate whose p-value is at most ``alpha``, its values refined (its refit on
+    the recording continued from where the statistic's ended) and their interval (a
+    parametric bootstrap: ``calibration.interval_replicates`` recordings simulated from the
+    model with the effect at its fitted values, with the same variability and noise, each
+    refitted from those values; the estimate plus or minus the normal quantile times their
+    spread). ``estimates``: per candidate, a fit of the model with it (`FitResult` or None,
+    such as a search's refit on the recording); where its error is below the statistic's
+    refit's, the refinement starts from its values (the statistic's few steps from the
+    control's optimum can stop short of an effect that moves the fitted parameters)."""
     cands = list(cands)
     jobs = refit_jobs(result, recording, cands)
     fitted = result.fitted_gaw(recording)
@@ -631,10 +645,19 @@ def calibrate(
     n = len(nulls_min)
     family = (1 + (nulls_min[:, None] <= q_obs[None, :]).sum(axis=0)) / (n + 1)
     marginal = (1 + (nulls_q <= q_obs[None, :]).sum(axis=0)) / (n + 1)
+    values = [_values(jobs, yb[0, k], c) for k, c in enumerate(cands)]
     intervals = [None] * len(cands)
     for k, cand in enumerate(cands):
         if family[k] <= alpha:
-            intervals[k] = _interval(jobs, source, yb[0, k], k, cand, (sd_t, sd_a), calibration)
+            y = yb[0, k]
+            found = None if estimates is None else estimates[k]
+            if found is not None and found.nmse < cb[0, k]:
+                y = np.asarray(
+                    _start(jobs.problem, _coordinates(jobs.problem, found.params, 0.0))[0]
+                )
+            values[k], intervals[k] = _interval(
+                jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration
+            )
     variability = Variability(
         jitter,
         shimmer,
@@ -648,7 +671,7 @@ def calibrate(
         candidates=tuple(c.name for c in cands),
         control_nmse=control_nmse,
         nmse=tuple(float(x) for x in cb[0]),
-        values=tuple(_values(jobs, yb[0, k], c) for k, c in enumerate(cands)),
+        values=tuple(values),
         f_p_values=tuple(float(x) for x in q_obs),
         p_values=tuple(float(x) for x in family),
         marginal_p_values=tuple(float(x) for x in marginal),
@@ -660,22 +683,29 @@ def calibrate(
     )
 
 
-def _interval(jobs, source, y, k, cand, sds, calibration) -> dict:
-    """{parameter: (low, high)} of candidate ``k``'s parameters at the point ``y`` of the
-    recording's refit (see `calibrate`)."""
+def _interval(jobs, source, observed, y, k, cand, sds, calibration) -> tuple[dict, dict]:
+    """Candidate ``k``'s parameters refined from the point ``y`` of the recording's refit, and
+    their interval: ``({parameter: value}, {parameter: (low, high)})`` (see `calibrate`).
+
+    Every refit starts at ``y``, the bootstrap recordings' truth (a start elsewhere, such as
+    the statistic's lattice, can leave a replicate far from its optimum within the fixed
+    steps and inflate the spread); the recording itself rides in the first batch, and its
+    refit from ``y`` is the refined estimate the interval is centred on."""
     model, shift = jobs.problem.unpack(jnp.asarray(y))
     model = model.with_term(source.model.terms[-2]).with_term(source.model.terms[-1])
     size, n = calibration.batch, calibration.interval_replicates
-    draws = [source.draw(size, *sds, model=model, shift=shift) for _ in range(-(-n // size))]
+    own = (np.asarray(jobs.owner) == k)[:, None]
+    from_y = dataclasses.replace(jobs, starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts))
+    rows = np.concatenate([observed, source.draw(n, *sds, model=model, shift=shift)])
+    rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
     values = []
-    for data in draws:
-        _, _, yb, _ = run_statistics(jobs, data, calibration.steps)
+    for i in range(0, len(rows), size):
+        _, _, yb, _ = run_statistics(from_y, rows[i : i + size], calibration.steps)
         values += [_values(jobs, row, cand) for row in yb[:, k]]
-    values = values[:n]
-    estimate = _values(jobs, y, cand)
+    estimate, values = values[0], values[1 : n + 1]
     z = float(stats.norm.ppf(0.5 + calibration.interval / 2))
     out = {}
     for name, v in estimate.items():
         spread = float(np.std([x[name] for x in values], ddof=1))
         out[name] = (v - z * spread, v + z * spread)
-    return out
+    return estimate, out

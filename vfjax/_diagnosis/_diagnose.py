@@ -36,7 +36,7 @@ def diagnose(
         criteria: the family-wise significance level and the score test's variance
             (`Criteria`).
         plan: how the model is searched with each candidate and without (`RefitPlan`:
-            starts, swarm, polish, the confirming refit of the leader); None: score tests
+            starts, swarm, polish, the confirming refit of the effect to add); None: score tests
             only, ranked by their (asymptotic, uncalibrated) p-values.
         calibration: how the refits' statistics are calibrated on null recordings
             (`Calibration`: most null recordings, batch, interval level, ...).
@@ -71,25 +71,40 @@ def diagnose(
         control, *fitted_each = refit_each(
             result, recording, jobs, plan, family=cands, anchor=anchor
         )
-        if plan.confirm_iterations is not None:
+        if plan.confirm_iterations is not None:  # the best fit without any effect
             control, fitted_each = confirm(
                 result,
                 recording,
                 jobs,
                 control,
                 fitted_each,
+                top=None,
                 plan=plan,
-                matters=lambda k: scores[k].p_value < level,
                 anchor=anchor,
                 family=cands,
             )
         # the test: calibrated on null recordings of the best fit without any effect
         base = result if result.nmse <= control.nmse else control
-        cal = calibrate(base, recording, cands, criteria.alpha, calibration)
+        cal = calibrate(base, recording, cands, criteria.alpha, calibration, fitted_each)
         if progress:
             print(
                 f"control (no effect): NMSE {result.nmse:.4g} -> {cal.control_nmse:.4g}; "
                 f"{cal.replicates} null recordings"
+            )
+        # a larger search for the effect to add (the most significant, if any is), where an
+        # extension starts; an effect that is not needed keeps its quick refit
+        leader = min(range(len(cands)), key=lambda k: (cal.p_values[k], cal.f_p_values[k]))
+        if plan.confirm_iterations is not None and cal.p_values[leader] <= criteria.alpha:
+            control, fitted_each = confirm(
+                result,
+                recording,
+                jobs,
+                control,
+                fitted_each,
+                top=leader,
+                plan=plan,
+                anchor=anchor,
+                family=cands,
             )
         for k, (cand, fitted) in enumerate(zip(cands, fitted_each)):
             off = {n: float(type(cand.term).off_values[n]) for n in cand.tested}

@@ -46,13 +46,15 @@ class RefitPlan(eqx.Module):
         polish: the refits' polish.
         box: the fitted parameters are searched within this factor of their current values
             (and of the starting model's, and of every start's).
-        confirm_iterations: swarm iterations of the confirming refit of the leading
-            candidate and of the control; None: quick refits only.
+        confirm_iterations: swarm iterations of the confirming refits: of the control
+            (before the calibration, which simulates from the best fit without any effect)
+            and of the effect to add with the control again (the most significant candidate,
+            when its calibrated p-value reaches alpha); None: quick refits only.
         confirm_swarms: independent swarms of the confirming refit, each from one of the
-            candidate's best starts, for a candidate of one parameter. For a leader whose
-            score test is significant, they double per further parameter and the
-            iterations grow by a quarter per further parameter (the basins of interacting
-            parameters, such as a modulation's frequency and phase, are narrow).
+            candidate's best starts, for a candidate of one parameter; they double per
+            further parameter and the iterations grow by a quarter per further parameter
+            (the basins of interacting parameters, such as a modulation's frequency and
+            phase, are narrow).
         batch: fits per compiled batch (the programs are shared by batches up to it).
     """
 
@@ -80,10 +82,10 @@ class RefitPlan(eqx.Module):
                 f"RefitPlan: confirm_iterations must be a positive integer or None, got {c!r}"
             )
 
-    def confirm_search(self, n_params: int, scale: bool = True) -> tuple[int, int]:
+    def confirm_search(self, n_params: int) -> tuple[int, int]:
         """(swarms, iterations) of the confirming refit for a candidate of ``n_params``
-        parameters (``scale=False``: as for one parameter)."""
-        extra = max(n_params - 1, 0) if scale else 0
+        parameters."""
+        extra = max(n_params - 1, 0)
         return self.confirm_swarms * 2**extra, int(round(self.confirm_iterations * (1 + extra / 4)))
 
 

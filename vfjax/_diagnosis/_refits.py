@@ -213,24 +213,25 @@ def anchor_values(result: FitResult, recording: Recording) -> dict:
     return {n: float(start[n]) for n in result.params if n in start}
 
 
-def confirm(result, recording, jobs, control, fitted, *, plan, matters, anchor, family):
-    """Refit the leading candidate (the lowest quick-refit error) and the control again with
-    a larger search (`RefitPlan.confirm_search`: more swarms and iterations, scaled by the
-    leader's dimension when ``matters(index)`` says so), from their
-    quick refits and from the jobs' anchored starts; keep each one's better fit. The control
-    gets the same search as the candidate, so that the fall it is measured against is not the
-    product of a bigger search alone.
+def confirm(result, recording, jobs, control, fitted, *, top, plan, anchor, family):
+    """Refit the control, and candidate ``top`` (an index into ``fitted``, the effect to add;
+    None: the control alone) again with a larger search (`RefitPlan.confirm_search`: more
+    swarms and iterations, scaled by the candidate's dimension), from their quick refits and
+    from the jobs' anchored starts; keep each one's better fit. The control gets the same
+    search as the candidate, so that the fall it is measured against is not the product of a
+    bigger search alone.
 
     A candidate that needs a longer warm-up than the fit's (its term's ``min_warmup``: a slow
     modulation, whose history is in the state at the first frame) is first refitted again at
     that warm-up from all its quick starts, and so is the control; the larger refits then
-    start from those. Returns (control, fitted) with the leader's refit replaced."""
-    top = min(range(len(fitted)), key=lambda i: error(fitted[i]))
-    (_, control_starts), (cand, cand_starts) = jobs[0], jobs[1 + top]
-    swarms, iterations = plan.confirm_search(len(cand.tested + cand.extra), matters(top))
-    warmup = max(result.sampling.warmup, float(type(cand.term).min_warmup))
+    start from those. Returns (control, fitted) with candidate ``top``'s refit replaced."""
+    control_starts = jobs[0][1]
+    cand, cand_starts = (None, []) if top is None else jobs[1 + top]
+    n_params = 1 if cand is None else len(cand.tested + cand.extra)
+    swarms, iterations = plan.confirm_search(n_params)
+    warmup = max(result.sampling.warmup, float(0 if cand is None else type(cand.term).min_warmup))
     common = {"family": family, "anchor": anchor, "warmup": warmup}
-    quick = (control, fitted[top])
+    quick = [control] + ([] if cand is None else [fitted[top]])
     if warmup > result.sampling.warmup:
         quick = refit_each(result, recording, [jobs[0], jobs[1 + top]], plan, **common)
 
@@ -240,13 +241,14 @@ def confirm(result, recording, jobs, control, fitted, *, plan, matters, anchor, 
     def cycled(starts):  # one swarm per start, the starts repeated (other keys) up to swarms
         return list(itertools.islice(itertools.cycle(starts), swarms))
 
-    deep = [
-        (None, cycled([dict(quick[0].params)] + from_anchor(control_starts))),
-        (cand, cycled([dict(quick[1].params)] + (from_anchor(cand_starts) or cand_starts[-1:]))),
-    ]
-    c, f = refit_each(result, recording, deep, plan, iterations=iterations, **common)
+    deep = [(None, cycled([dict(quick[0].params)] + from_anchor(control_starts)))]
+    if cand is not None:
+        own = [dict(quick[1].params)] + (from_anchor(cand_starts) or cand_starts[-1:])
+        deep.append((cand, cycled(own)))
+    c, *f = refit_each(result, recording, deep, plan, iterations=iterations, **common)
     fitted = list(fitted)
-    fitted[top] = min(fitted[top], quick[1], f, key=error)
+    if cand is not None:
+        fitted[top] = min(fitted[top], quick[1], f[0], key=error)
     return min(control, quick[0], c, key=error), fitted
 
 

@@ -175,14 +175,18 @@ def verdict_text(d: Diagnosis) -> str:
         p = evidence(d.scores[d.best], f)
         text = f"{d.best} is missing (p = {p:.2g}{against})"
         if f is not None:
+            # the errors of the fits a user goes on with: the best without the effect and
+            # the search's refit with it (the calibrated refits' are in the table)
+            after = f.result.nmse
+            fall = 1.0 - after / before if before > 0 else 0.0
             text += (
-                f": adding it lowers the NMSE from {cal.control_nmse:.3%} to {f.nmse:.3%} "
-                f"({f.fall:.0%} of the squared error; {_sizes(f)}"
+                f": adding it lowers the NMSE from {before:.3%} to {after:.3%} "
+                f"({fall:.0%} of the squared error; {_sizes(f)}"
                 + (f", {cal.interval_level:.0%} intervals)" if f.interval else ")")
             )
             if d.noise_nmse > 0:
                 text += (
-                    f". The error left is {f.nmse / d.noise_nmse:.1f} times the noise floor; "
+                    f". The error left is {after / d.noise_nmse:.1f} times the noise floor; "
                     "diagnose the extended fit for a second round"
                 )
         lines.append(text)
