@@ -144,12 +144,20 @@ def test_bad_arguments_are_refused(shared_dir):
 
 
 # ------------------------------------------------------------------- shared independent data
-def _shared(shared_dir, name):
+def _shared(shared_dir, name, **options):
     folder = shared_dir / "data" / "synthetic"
     rec = vfjax.load_recording(folder / f"{name}.csv")
     answer = json.loads((folder / f"{name}.answer.json").read_text())
     result = vfjax.fit_recording(rec, progress=False)  # as the command line's first fit
-    return rec, answer, result, vfjax.diagnose(result, rec)
+    return rec, answer, result, vfjax.diagnose(result, rec, **options)
+
+
+#: A level whose smallest p-value (1/40) takes three batches of null recordings instead of
+#: the default's seven (1/112 at alpha 0.01; notebook 02 runs the default level).
+QUICK_LEVEL = {
+    "criteria": vfjax.Criteria(alpha=0.05),
+    "calibration": vfjax.Calibration(replicates=39),
+}
 
 
 @pytest.mark.xdist_group("diagnosis")  # one worker compiles the calibration's programs once
@@ -174,7 +182,7 @@ def test_shared_no_effect_case_flags_nothing(shared_dir):
 
 @pytest.mark.xdist_group("diagnosis")
 def test_shared_gap_case(shared_dir):
-    rec, answer, result, d = _shared(shared_dir, "syn_gap")
+    rec, answer, result, d = _shared(shared_dir, "syn_gap", **QUICK_LEVEL)
     assert d.ranking[0] == "GlottalGap" and d.best == "GlottalGap", d.verdict
     assert d.scores["GlottalGap"].direction == +1
     refit = d.refits["GlottalGap"]
@@ -184,6 +192,9 @@ def test_shared_gap_case(shared_dir):
     assert refit.result.model.has(GlottalGap)
     assert not any(refit.result.model.has(k) for k in (MucosalDelay, PressureModulation))
     assert refit.identified and refit.p_value <= d.level
+    # the bootstrap interval holds the hidden value
+    low, high = refit.interval["a_gap"]
+    assert low <= answer["effect_values"]["GlottalGap"] <= high
 
 
 @pytest.mark.slow

@@ -46,10 +46,11 @@ off, or a user's own term), two questions:
 
 An effect is *needed* when its calibrated p-value is at most ``Criteria.alpha`` and the
 interval of its size (a parametric bootstrap: recordings simulated from the model with the
-effect, refitted alike) excludes its off-value; significant with an interval that includes
-it, the effect is "detectable but not identifiable". Candidates are ranked by calibrated
-p-value (by score p-value without refits). When no effect is needed, `Diagnosis.verdict`
-says so in words, with where the model fails (`vfjax.compare`).
+effect at its refined values, each refitted from them) excludes its off-value; significant
+with an interval that includes it, the effect is "detectable but not identifiable".
+Candidates are ranked by calibrated p-value (by score p-value without refits). When no
+effect is needed, `Diagnosis.verdict` says so in words, with where the model fails
+(`vfjax.compare`).
 
 - ``_options``: `Criteria` and `RefitPlan`;
 - ``_calibration``: `Calibration`, the null recordings and the calibrated statistic;

@@ -379,7 +379,7 @@ def _statistics(problem, y0, starts, frees, bases, data, steps: int, mesh):
         return cc, yc, cj, yj
 
     def run(data):
-        return jax.lax.map(one, data)
+        return jax.vmap(one)(data)
 
     if mesh is None:
         return run(data)
