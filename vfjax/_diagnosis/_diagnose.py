@@ -71,18 +71,23 @@ def diagnose(
         control, *fitted_each = refit_each(
             result, recording, jobs, plan, family=cands, anchor=anchor
         )
-        if plan.confirm_iterations is not None:  # the best fit without any effect
-            control, fitted_each = confirm(
+
+        def confirmed(top):  # a larger search of the control (and candidate top), from the
+            # current control and refits
+            return confirm(
                 result,
                 recording,
                 jobs,
                 control,
                 fitted_each,
-                top=None,
+                top=top,
                 plan=plan,
                 anchor=anchor,
                 family=cands,
             )
+
+        if plan.confirm_iterations is not None:  # the best fit without any effect
+            control, fitted_each = confirmed(None)
         # the test: calibrated on null recordings of the best fit without any effect
         base = result if result.nmse <= control.nmse else control
         cal = calibrate(base, recording, cands, criteria.alpha, calibration, fitted_each)
@@ -95,17 +100,7 @@ def diagnose(
         # extension starts; an effect that is not needed keeps its quick refit
         leader = min(range(len(cands)), key=lambda k: (cal.p_values[k], cal.f_p_values[k]))
         if plan.confirm_iterations is not None and cal.p_values[leader] <= criteria.alpha:
-            control, fitted_each = confirm(
-                result,
-                recording,
-                jobs,
-                control,
-                fitted_each,
-                top=leader,
-                plan=plan,
-                anchor=anchor,
-                family=cands,
-            )
+            control, fitted_each = confirmed(leader)
         for k, (cand, fitted) in enumerate(zip(cands, fitted_each)):
             off = {n: float(type(cand.term).off_values[n]) for n in cand.tested}
             fall = 1.0 - cal.nmse[k] / cal.control_nmse if cal.control_nmse > 0 else 0.0
