@@ -16,16 +16,20 @@ oracle: the share of the error that the true structure at its true values (polis
 there) removes from the paper model's fit, the best any test could see. The false-alarm rate
 is the share of no-effect recordings where anything is needed.
 
-Resumable: each recording's outcome is appended to a JSON-lines file (``--out``) as soon as
-it is done; a rerun skips what is there and prints the table from all of it.
+Resumable: each recording's outcome (with the commit that made it) is appended to a
+JSON-lines file (``--out``) as soon as it is done; a rerun skips what is there and prints the
+table from all of it. Recordings run seed by seed (every effect, strength, subject and noise
+of seed 0 first), so that a partial run covers every case alike.
 
-Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none] [--limit N]
+Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none]
+[--strength weak|medium|strong] [--limit N]
 """
 
 import argparse
 import json
 import math
 import pathlib
+import subprocess
 import time
 
 import numpy as np
@@ -70,7 +74,7 @@ def cases():
                     for seed in SEEDS:
                         key = f"{effect}/{strength}/{subject}/{noise:g}px/{seed}"
                         out.append((key, subject, effect, k, noise, seed))
-    return out
+    return sorted(out, key=lambda c: c[5])  # seed by seed (a stable sort)
 
 
 def make_recording(subject, effect, strength, noise, seed):
@@ -110,6 +114,27 @@ def oracle_fall(truth, rec, first, effect: str) -> float:
     return 1.0 - best.nmse / first.nmse
 
 
+def _commit() -> str:
+    """The checkout's commit (with ``+`` when it has changes), or ``unknown``."""
+    here = pathlib.Path(__file__).parent
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=here,
+            capture_output=True,
+            text=True,
+        ).stdout.strip()
+    except OSError:
+        return "unknown"
+    return (head + ("+" if dirty else "")) or "unknown"
+
+
+COMMIT = _commit()
+
+
 def run_case(case) -> dict:
     key, subject, effect, strength, noise, seed = case
     rec, truth = make_recording(subject, effect, strength, noise, seed)
@@ -124,6 +149,7 @@ def run_case(case) -> dict:
         "noise_px": noise,
         "seed": seed,
         "seconds": time.perf_counter() - t0,
+        "commit": COMMIT,
         "first_nmse": first.nmse,
         "needed": d.needed,
         "ranking": d.ranking,
@@ -175,6 +201,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="diagnosis_power.jsonl", help="JSON-lines results file")
     ap.add_argument("--only", help="one effect's cases, or 'none' for the no-effect ones")
+    ap.add_argument("--strength", choices=STRENGTHS, help="only this strength of the effects")
     ap.add_argument("--limit", type=int, help="stop after this many new recordings")
     args = ap.parse_args()
     use_cpu_cores(None)
@@ -184,6 +211,8 @@ def main():
     todo = [c for c in cases() if c[0] not in done]
     if args.only:
         todo = [c for c in todo if (c[2] or "none") == args.only]
+    if args.strength:
+        todo = [c for c in todo if c[3] is None or STRENGTHS[c[3]] == args.strength]
     for case in todo[: args.limit]:
         row = run_case(case)
         with out.open("a") as f:
