@@ -11,10 +11,11 @@ cycle, `TimingJitter` and `AmplitudeJitter`, and closure-duration jitter of 0.3 
 (`vfjax.fit_recording`) and diagnosed with the defaults (`vfjax.diagnose`).
 
 Per effect and strength: the detection rate (the true effect is needed), how often the true
-effect ranks first among the needed ones, the recovered value over the truth, and the
-oracle: the share of the error that the true structure at its true values (polished from
-there) removes from the paper model's fit, the best any test could see. The false-alarm rate
-is the share of no-effect recordings where anything is needed.
+effect ranks first among the needed ones, the recovered value over the truth, how often its
+interval holds the truth, and the oracle: the share of the error that the true structure at
+its true values (polished from there) removes from the paper model's fit, the best any test
+could see. The false-alarm rate is the share of no-effect recordings where anything is
+needed.
 
 Resumable: each recording's outcome (with the commit that made it) is appended to a
 JSON-lines file (``--out``) as soon as it is done; a rerun skips what is there and prints the
@@ -161,6 +162,8 @@ def run_case(case) -> dict:
         refit = d.refits.get(effect)
         row["truth"] = values[strength]
         row["recovered"] = refit.values.get(name) if refit is not None else None
+        interval = (refit.interval or {}).get(name) if refit is not None else None
+        row["interval"] = list(interval) if interval is not None else None
         row["oracle_fall"] = oracle_fall(truth, rec, first, effect)
     return row
 
@@ -173,7 +176,7 @@ def summary(rows):
         print(f"no effect: false alarms {alarms}/{len(nulls)} ({alarms / len(nulls):.0%})")
     print(
         "effect              strength  n  detected  first  recovered/truth (median)  "
-        "oracle fall (median)  s/recording"
+        "interval holds truth  oracle fall (median)  s/recording"
     )
     for effect in EFFECTS:
         for strength in STRENGTHS:
@@ -188,10 +191,16 @@ def summary(rows):
                 for r in found
                 if r["recovered"] is not None and r["truth"]
             ]
+            held = [
+                r["interval"][0] <= r["truth"] <= r["interval"][1]
+                for r in found
+                if r.get("interval") is not None
+            ]
             print(
                 f"{effect:19s} {strength:8s} {len(got):2d}  {len(found) / len(got):7.0%}  "
                 f"{(len(first) / len(flagged)) if flagged else math.nan:5.0%}  "
                 f"{np.median(ratio) if ratio else math.nan:24.2f}  "
+                f"{f'{sum(held)}/{len(held)}':>20s}  "
                 f"{np.median([r['oracle_fall'] for r in got]):20.2%}  "
                 f"{np.median([r['seconds'] for r in got]):11.0f}"
             )
