@@ -174,10 +174,11 @@ def run_case(case) -> dict:
         if refit is not None and effect in SCALED:
             # what the GAW fixes: the size times a parameter it trades off against
             other = SCALED[effect]
-            row["recovered_scaled"] = row["recovered"] * refit.result.params[other]
+            fitted = float(refit.result.model.params()[other])
+            row["recovered_scaled"] = row["recovered"] * fitted
             row["truth_scaled"] = row["truth"] * float(truth.params()[other])
             if row["interval"] is not None:  # the other parameter's own spread left out
-                row["interval_scaled"] = [v * refit.result.params[other] for v in row["interval"]]
+                row["interval_scaled"] = [v * fitted for v in row["interval"]]
     return row
 
 

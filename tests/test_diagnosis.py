@@ -357,12 +357,6 @@ def test_strong_cycle_to_cycle_variability_alone_is_not_flagged():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="not flagged (fit NMSE 0.087 %, four noise floors): the recording's shimmer "
-    "(4.2 % against the fit's 1.1 %) sizes the null recordings' amplitude jitter, and their "
-    "refits fall further than the recording's (smallest calibrated p = 1)",
-)
 def test_a_weak_mucosal_delay_is_flagged():
     # a delay of 0.25 ms, whose refit reaches the noise floor: no threshold on the error
     # fall keeps it from being found. N1 (male, about 34 frames a cycle at 4 000 fps): the
