@@ -200,7 +200,7 @@ def test_shared_gap_case(shared_dir):
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
-    reason="a second round flags a pressure modulation (22 % of a residual at 1.4 noise "
+    reason="a second round flags a pressure modulation (21 % of a residual at 1.1 noise "
     "floors) that no null recording of the fitted model with matched variability reaches",
 )
 def test_shared_gap_case_second_round_finds_nothing(shared_dir):
