@@ -1,16 +1,17 @@
 """Calibration by simulation: the null recordings of a fit and the refit statistics that a
 diagnosis compares with theirs (a parametric bootstrap of the test).
 
-A null recording is what the fitted model, with no candidate effect, would have produced (its
-control refitted in the statistic's sampling, `null_model`): its GAW with the recording's
-cycle-to-cycle variability (period and amplitude jitter drawn afresh, `TimingJitter` and
-`AmplitudeJitter`, matched to the recording's own jitter and shimmer) and white noise at the
-recording's level, clipped at zero and rounded like the recording. On every recording, the
-observed one and the null ones, the same refit statistic is computed by the same compiled
-program (`_statistics`): the control refit of the fitted parameters, then each candidate's
-refit from the control's optimum and from the same fixed starts (`refit_jobs`;
-`Calibration.steps` Levenberg-Marquardt steps each). A candidate's refit never ends worse
-than the control: the control's optimum, with the effect off, is one of its points.
+A null recording is what the fitted model, with no candidate effect, would have produced in
+the fit's own sampling: its GAW with the recording's cycle-to-cycle variability (period and
+amplitude jitter drawn afresh, `TimingJitter` and `AmplitudeJitter`, matched to the
+recording's own jitter and shimmer) and white noise at the recording's level, clipped at
+zero and rounded like the recording. On every recording, the observed one and the null
+ones, the same refit statistic is computed by the same compiled programs (`_statistics`,
+one per group of candidates that share a warm-up, `refit_groups`): the control refit of the
+fitted parameters, then each candidate's refit from the control's optimum and from the same
+fixed starts (`refit_jobs`; `Calibration.steps` Levenberg-Marquardt steps each). A
+candidate's refit never ends worse than its control: the control's optimum, with the effect
+off, is one of its points.
 """
 
 import dataclasses
@@ -144,12 +145,14 @@ class _NullSource:
     that GAW, clipped at zero and rounded like the recording (integer areas stay
     integers)."""
 
-    def __init__(self, problem, model, shift, recording: Recording, period, seed):
+    def __init__(self, problem, model, shift, recording: Recording, period, seed, start=0.0):
         self.simulator = _Simulator(problem)
         self.shift = jnp.asarray(shift)
         self.recording = recording
         self.period = float(period)
-        horizon = float(problem.grid.t_start) + float(problem.grid.max_time_shift)
+        # the jitter's slots reach the last frame of any sampling it is simulated in
+        # (``start``: the latest first frame, warm-up and shift, of those)
+        horizon = max(float(problem.grid.t_start) + float(problem.grid.max_time_shift), start)
         horizon += recording.n_frames / recording.fps
         self.n_slots = length_bucket(math.ceil(horizon / period) + 2)
         self.model = model.with_term(TimingJitter(np.zeros(self.n_slots), period)).with_term(
@@ -165,11 +168,13 @@ class _NullSource:
         self.rng = np.random.default_rng(seed)
 
     def draw(
-        self, n: int, timing_sd: float, amplitude_sd: float, model=None, shift=None
+        self, n: int, timing_sd: float, amplitude_sd: float, model=None, shift=None, problem=None
     ) -> np.ndarray:
         """``n`` recordings' areas (n, frames bucket), zero beyond the recording, with timing
         offsets of deviation ``timing_sd`` (s) and amplitude factors of ``amplitude_sd``;
-        of ``model`` (with the source's jitter terms last) at ``shift`` (s) if given."""
+        of ``model`` (with the source's jitter terms last) at ``shift`` (s) in the sampling
+        of ``problem`` (a `Problem` of the same recording) if given."""
+        simulator = self.simulator if problem is None else _Simulator(problem)
         shape = (n, self.n_slots)
         offsets = timing_sd * self.rng.standard_normal(shape)
         factors = np.clip(1.0 + amplitude_sd * self.rng.standard_normal(shape), 0.05, None)
@@ -183,7 +188,7 @@ class _NullSource:
             [
                 np.asarray(
                     _jittered_gaws(
-                        self.simulator,
+                        simulator,
                         base,
                         shift,
                         jnp.asarray(offsets[i : i + _DRAW_BATCH]),
@@ -312,12 +317,12 @@ def variability_size(source: "_NullSource", fitted, kind, n: int = 8) -> tuple[f
 class _Jobs:
     """The refits of one statistic: the control, then each candidate from its starts."""
 
-    problem: object  # the wide model's `Problem` (the observed recording's data)
-    y0: jax.Array  # (n_y,) where every refit starts: the null model's point
+    problem: object  # the group's wide model's `Problem` (the observed recording's data)
+    y0: jax.Array  # (n_y,) where every refit starts: the control's point on the recording
     starts: jax.Array  # (jobs, n_y) candidate starts; NaN where the control's optimum is taken
     frees: jax.Array  # (1 + jobs, n_params) fitted parameters of the control and each job
     bases: jax.Array  # (1 + jobs, columns, n_y) each refit's search directions
-    owner: tuple  # candidate index of each job
+    owner: tuple  # candidate index of each job (in the diagnosis's list of candidates)
 
 
 def levenberg_marquardt(residual, y0, basis, steps: int):
@@ -366,15 +371,13 @@ def _refit_control(problem, y0, free, basis, steps: int):
     return levenberg_marquardt(dataclasses.replace(problem, free=free).residual, y0, basis, steps)
 
 
-def null_model(jobs: _Jobs, steps: int) -> _Jobs:
-    """``jobs`` starting from the null model: the control refitted on the recording in the
-    statistic's own problem (``2 * steps`` steps from the fit's point). The statistic's
-    sampling can differ from the fit's (a candidate's longer warm-up changes the state at
-    the first frame), and there the fit's point is not the control's optimum: syn_gap's
-    fit with its gap, simulated after 0.1 s rather than its 20 ms, has 2.4 times its error
-    until refitted. Null recordings simulated from such a point differ from the recording
-    by more than their noise and variability, and refits that recover what the change of
-    sampling lost on the recording, but not on them, read as evidence."""
+def settled(jobs: _Jobs, steps: int) -> _Jobs:
+    """``jobs`` starting from the control refitted on the recording in the group's own
+    sampling (``2 * steps`` steps from the fit's point), for a group whose warm-up is longer
+    than the fit's. There the fit's point is not the control's optimum (a longer warm-up
+    changes the state at the first frame: syn_gap's fit with its gap, simulated after 0.1 s
+    rather than its 20 ms, has 2.4 times its error until refitted), and refits from it
+    within a few steps would differ by where they stop."""
     y, _ = _refit_control(jobs.problem, jobs.y0, jobs.frees[0], jobs.bases[0], 2 * int(steps))
     return dataclasses.replace(jobs, y0=y)
 
@@ -454,9 +457,54 @@ def _single_basin(cand: Candidate) -> bool:
     return len(cand.grid) == 1 and len(cand.directions) == 1
 
 
-def refit_jobs(result: FitResult, recording: Recording, cands, estimates=None) -> _Jobs:
-    """The statistic's refits of ``result`` on ``recording``: its model extended by every
-    candidate (held at their off-values), the control, and each candidate's starts, the
+def _fit_point(problem, result: FitResult) -> np.ndarray:
+    """The point of ``problem`` (the fit's sampling, its model extended by effects held
+    off) where its model is ``result``'s fitted model at its time shift."""
+    y = np.r_[_coordinates(problem, result.params, 0.0), result.time_shift / float(problem.period)]
+    if problem.fit_s:
+        y = np.r_[y, math.log(result.params["S"] / float(problem.s_reference))]
+    return y
+
+
+def refit_groups(result: FitResult, recording: Recording, cands, estimates, steps: int) -> list:
+    """The statistic's refits of ``result`` on ``recording``, in groups of one warm-up each
+    (`refit_jobs`): the candidates that need no longer warm-up than the fit's are refitted
+    in the fit's own sampling, from the fit's point; those that do (a slow modulation's
+    ``min_warmup``), in theirs, from the control refitted there (`settled`, ``2 * steps``
+    steps). Each candidate's statistic compares its refit with the control of its own
+    group.
+
+    Every group refits the same model (extended by every candidate, held off but its own)
+    with as many jobs (padded with copies of the control, owner -1), so that one compiled
+    program serves them all: the warm-up is data."""
+    warmups = [max(result.sampling.warmup, float(type(c.term).min_warmup)) for c in cands]
+    groups = []
+    for w in sorted(set(warmups)):
+        members = [k for k, wk in enumerate(warmups) if wk == w]
+        groups.append(refit_jobs(result, recording, cands, estimates, members, w))
+    n_jobs = max(len(g.owner) for g in groups)
+    width = max(g.bases.shape[1] for g in groups)
+    out = []
+    for g, w in zip(groups, sorted(set(warmups))):
+        pad = n_jobs - len(g.owner)
+        bases = jnp.pad(g.bases, ((0, 0), (0, width - g.bases.shape[1]), (0, 0)))
+        g = dataclasses.replace(
+            g,
+            starts=jnp.concatenate([g.starts, jnp.full((pad, g.starts.shape[1]), jnp.nan)]),
+            frees=jnp.concatenate([g.frees, jnp.repeat(g.frees[:1], pad, axis=0)]),
+            bases=jnp.concatenate([bases, jnp.repeat(bases[:1], pad, axis=0)]),
+            owner=g.owner + (-1,) * pad,
+        )
+        out.append(g if w == result.sampling.warmup else settled(g, steps))
+    return out
+
+
+def refit_jobs(
+    result: FitResult, recording: Recording, cands, estimates, members, warmup: float
+) -> _Jobs:
+    """The statistic's refits of ``result`` on ``recording`` for the candidates ``members``
+    (indices into ``cands``) at ``warmup`` (s): the model extended by every candidate (held
+    at their off-values), the control, and each member's starts, the
     same for every recording the statistic is computed on: the fixed lattice of
     `_start_values` and, for a candidate with a single basin, its fit on the recording
     (``estimates[k]``, a `FitResult` of the model with it, such as the search's refit)
@@ -481,7 +529,6 @@ def refit_jobs(result: FitResult, recording: Recording, cands, estimates=None) -
     union = fitted + tuple(
         dict.fromkeys(n for c in cands for n in c.tested + c.extra if n not in fitted)
     )
-    warmup = max([result.sampling.warmup] + [float(type(c.term).min_warmup) for c in cands])
     sampling = dataclasses.replace(result.sampling, warmup=warmup)
     period = 1.0 / fundamental_frequency(recording.area, recording.fps)
     problem, _, _ = prepare(wide, recording, union, sampling, period, None)
@@ -490,20 +537,25 @@ def refit_jobs(result: FitResult, recording: Recording, cands, estimates=None) -
     def coords(values):
         return np.r_[_coordinates(problem, values), np.full(1 + problem.fit_s, np.nan)]
 
-    # the fitted point, its time shift found afresh on the grid of shifts (a longer warm-up
-    # than the fit's moves the phase of the cycle at the first frame), S projected
-    y0, _ = _start(problem, jnp.zeros(len(names)))
-    y0 = np.asarray(y0)
+    if warmup == result.sampling.warmup:  # the fit's own point
+        y0 = _fit_point(problem, result)
+    else:  # its time shift found afresh on the grid of shifts (a longer warm-up moves the
+        # phase of the cycle at the first frame), S projected
+        y0 = np.asarray(_start(problem, jnp.zeros(len(names)))[0])
     frees = [[1.0 if n in fitted else 0.0 for n in names]]
     starts, owner = [], []
-    for k, c in enumerate(cands):
+    for k in members:
+        c = cands[k]
         own = set(fitted) | set(c.tested + c.extra)
         begin = [coords(s) for s in _start_values(c, wide)]
         if _single_basin(c):
             found = None if estimates is None else estimates[k]
             if found is not None and found.nmse < result.nmse:
-                z = _coordinates(problem, found.params, 0.0)
-                begin.append(np.asarray(_start(problem, jnp.asarray(z))[0]))
+                if found.sampling.warmup == warmup:
+                    begin.append(_fit_point(problem, found))
+                else:
+                    z = _coordinates(problem, found.params, 0.0)
+                    begin.append(np.asarray(_start(problem, jnp.asarray(z))[0]))
             else:
                 begin.append(np.full(y0.size, np.nan))
         for b in begin:
@@ -528,41 +580,47 @@ def refit_jobs(result: FitResult, recording: Recording, cands, estimates=None) -
     )
 
 
-def run_statistics(jobs: _Jobs, data: np.ndarray, steps: int):
-    """The control's NMSE (recordings,), each candidate's best NMSE (recordings,
-    candidates) and the point of each candidate's best refit (recordings, candidates, n_y),
-    and the control's point (recordings, n_y)."""
-    cc, yc, cj, yj = (
-        np.asarray(a)
-        for a in _statistics(
-            jobs.problem,
-            jobs.y0,
-            jobs.starts,
-            jobs.frees,
-            jobs.bases,
-            jnp.asarray(data),
-            int(steps),
-            _mesh(len(data)),
-        )
-    )
-    owner = np.asarray(jobs.owner)
-    n_cands = int(owner.max()) + 1
+def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
+    """The statistic of every group's refits on the recordings ``data`` (rows): each
+    candidate's control NMSE, its group's (recordings, candidates), each candidate's best
+    refit NMSE (recordings, candidates) and the points of those refits (per candidate, an
+    array (recordings, n_y) in its group's coordinates)."""
+    controls = np.full((len(data), n_cands), np.nan)
     best_cost = np.full((len(data), n_cands), np.inf)
-    best_y = np.zeros((len(data), n_cands, yj.shape[-1]))
-    for k in range(n_cands):
-        rows = np.flatnonzero(owner == k)
-        pick = rows[np.argmin(np.where(np.isfinite(cj[:, rows]), cj[:, rows], np.inf), axis=1)]
-        best_cost[:, k] = cj[np.arange(len(data)), pick]
-        best_y[:, k] = yj[np.arange(len(data)), pick]
-    return cc, best_cost, best_y, yc
+    best_y = [None] * n_cands
+    for jobs in groups:
+        cc, _, cj, yj = (
+            np.asarray(a)
+            for a in _statistics(
+                jobs.problem,
+                jobs.y0,
+                jobs.starts,
+                jobs.frees,
+                jobs.bases,
+                jnp.asarray(data),
+                int(steps),
+                _mesh(len(data)),
+            )
+        )
+        owner = np.asarray(jobs.owner)
+        for k in np.unique(owner[owner >= 0]):
+            rows = np.flatnonzero(owner == k)
+            finite = np.where(np.isfinite(cj[:, rows]), cj[:, rows], np.inf)
+            pick = rows[np.argmin(finite, axis=1)]
+            controls[:, k] = cc
+            best_cost[:, k] = cj[np.arange(len(data)), pick]
+            best_y[k] = yj[np.arange(len(data)), pick]
+    return controls, best_cost, best_y
 
 
 def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray:
     """The F test's p-value of each refit's error fall (a monotone standardisation across
     candidates of different degrees of freedom; the calibration, not the F distribution,
     gives the verdict's p-values)."""
-    control = np.asarray(control, float)[..., None]
     refit = np.asarray(refit, float)
+    control = np.asarray(control, float)
+    if control.ndim < refit.ndim:  # one control for every candidate
+        control = control[..., None]
     dofs = np.asarray(dofs, float)
     resid = np.maximum(n_frames - n_fitted - dofs, 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -578,8 +636,10 @@ class Calibrated:
 
     Attributes:
         candidates: the candidates' names, in order.
-        control_nmse: the control refit's NMSE on the recording.
-        nmse: each candidate's refit NMSE on the recording (never above the control's).
+        control_nmse: the control refit's NMSE on the recording, in the fit's sampling.
+        controls: the control refit's NMSE that each candidate's is compared with: in the
+            candidate's sampling (``control_nmse``, or after a candidate's longer warm-up).
+        nmse: each candidate's refit NMSE on the recording (never above its control's).
         values: each candidate's fitted parameters on the recording (refined, for those
             with an interval).
         f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
@@ -597,6 +657,7 @@ class Calibrated:
 
     candidates: tuple
     control_nmse: float
+    controls: tuple
     nmse: tuple
     values: tuple
     f_p_values: tuple
@@ -630,11 +691,16 @@ def calibrate(
 ) -> Calibrated:
     """Calibrate each candidate's refit statistic on null recordings of ``result``.
 
+    The null recordings are ``result``'s fitted model in its own sampling, with the
+    recording's variability and noise: what the recording would be without any effect. On
+    the recording and on each null recording the same statistic is computed
+    (`refit_groups`): a candidate that needs a longer warm-up than the fit's (``min_warmup``:
+    a slow modulation's history must be in the state at the first frame) is refitted, and
+    its control too, after that warm-up; the others in the fit's own sampling.
+
     Sequential: null recordings come in batches of ``calibration.batch`` (the first one
     with the recording itself); once every candidate's family-wise p-value exceeds
-    ``alpha`` whatever the remaining ones show, no more are simulated. The refits simulate
-    from the longest warm-up that a candidate needs (``min_warmup``: a slow modulation's
-    history must be in the state at the first frame).
+    ``alpha`` whatever the remaining ones show, no more are simulated.
 
     For each candidate whose p-value is at most ``alpha``, its values refined (its refit on
     the recording continued from where the statistic's ended) and their interval (a
@@ -646,37 +712,49 @@ def calibrate(
     candidate with a single basin (`refit_jobs`), and, where its error is below the
     statistic's refit's, the start of the refinement."""
     cands = list(cands)
-    jobs = null_model(refit_jobs(result, recording, cands, estimates), calibration.steps)
-    model, shift = jobs.problem.unpack(jobs.y0)
+    steps = calibration.steps
+    groups = refit_groups(result, recording, cands, estimates, steps)
     period = 1.0 / fundamental_frequency(result.fitted_gaw(recording), recording.fps)
-    source = _NullSource(jobs.problem, model, shift, recording, period, calibration.seed)
+    own, _, _ = prepare(
+        result.model, recording, tuple(result.params), result.sampling, period, None
+    )
+    horizon = max(
+        float(g.problem.grid.t_start) + float(g.problem.grid.max_time_shift) for g in groups
+    )
+    source = _NullSource(
+        own, result.model, result.time_shift, recording, period, calibration.seed, horizon
+    )
     fitted, noise = source.clean[: recording.n_frames], source.noise_sd
     size = calibration.batch
-    observed = np.asarray(jobs.problem.measured)[None]
+    observed = np.asarray(own.measured)[None]
     n_fitted = len(result.params) + 1
     dofs = _dofs(cands)
-    steps = calibration.steps
+    n_cands = len(cands)
     if calibration.variability:
         jitter, shimmer, sd_t, sd_a = variability_kind(source)
         sd_t, sd_a = variability_size(source, fitted, (sd_t, sd_a))
     else:
         jitter = shimmer = sd_t = sd_a = 0.0
+
+    def statistics(rows):
+        return run_statistics(groups, rows, steps, n_cands)
+
     rows = [observed, source.draw(size - 1, sd_t, sd_a)]
-    cc, cb, yb, _ = run_statistics(jobs, np.concatenate(rows), steps)
-    control_nmse = float(cc[0])
+    cc, cb, yb = statistics(np.concatenate(rows))
+    main = next(k for g in groups for k in g.owner)  # a candidate of the first group
     q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
     level_count = alpha * (calibration.replicates + 1)  # exceedances that rule a candidate out
     nulls_min, nulls_q, controls = [], [], []
     c, b = cc[1:], cb[1:]  # the first batch's null recordings
     while len(nulls_min) < calibration.replicates:
         if len(c) == 0:
-            c, b, _, _ = run_statistics(jobs, source.draw(size, sd_t, sd_a), steps)
+            c, b, _ = statistics(source.draw(size, sd_t, sd_a))
         q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
-        q = np.where(np.isfinite(c)[:, None], q, 0.0)  # a failed null counts against
+        q = np.where(np.isfinite(c), q, 0.0)  # a failed null counts against
         take = min(size, calibration.replicates - len(nulls_min))
         nulls_q += list(q[:take])
         nulls_min += list(q[:take].min(axis=1))
-        controls += list(c[:take])
+        controls += list(c[:take, main])
         c = b = []
         exceed = (np.asarray(nulls_min)[:, None] <= q_obs[None, :]).sum(axis=0)
         if np.all(1 + exceed > level_count):
@@ -685,18 +763,21 @@ def calibrate(
     n = len(nulls_min)
     family = (1 + (nulls_min[:, None] <= q_obs[None, :]).sum(axis=0)) / (n + 1)
     marginal = (1 + (nulls_q <= q_obs[None, :]).sum(axis=0)) / (n + 1)
-    values = [_values(jobs, yb[0, k], c) for k, c in enumerate(cands)]
-    intervals = [None] * len(cands)
+    group_of = {k: g for g in groups for k in g.owner}
+    values = [_values(group_of[k], yb[k][0], c) for k, c in enumerate(cands)]
+    intervals = [None] * n_cands
     for k, cand in enumerate(cands):
         if family[k] <= alpha:
-            y = yb[0, k]
+            jobs, y = group_of[k], yb[k][0]
             found = None if estimates is None else estimates[k]
             if found is not None and found.nmse < cb[0, k]:
-                y = np.asarray(
-                    _start(jobs.problem, _coordinates(jobs.problem, found.params, 0.0))[0]
-                )
+                if found.sampling.warmup == float(jobs.problem.grid.t_start):
+                    y = _fit_point(jobs.problem, found)
+                else:
+                    z = _coordinates(jobs.problem, found.params, 0.0)
+                    y = np.asarray(_start(jobs.problem, jnp.asarray(z))[0])
             values[k], intervals[k] = _interval(
-                jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration
+                jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands
             )
     variability = Variability(
         jitter,
@@ -707,9 +788,11 @@ def calibrate(
         noise,
         period,
     )
+    fit_group = [k for k in range(n_cands) if group_of[k] is groups[0]]
     return Calibrated(
         candidates=tuple(c.name for c in cands),
-        control_nmse=control_nmse,
+        control_nmse=float(cc[0, fit_group[0]]),
+        controls=tuple(float(x) for x in cc[0]),
         nmse=tuple(float(x) for x in cb[0]),
         values=tuple(values),
         f_p_values=tuple(float(x) for x in q_obs),
@@ -723,25 +806,28 @@ def calibrate(
     )
 
 
-def _interval(jobs, source, observed, y, k, cand, sds, calibration) -> tuple[dict, dict]:
-    """Candidate ``k``'s parameters refined from the point ``y`` of the recording's refit, and
-    their interval: ``({parameter: value}, {parameter: (low, high)})`` (see `calibrate`).
+def _interval(jobs, source, observed, y, k, cand, sds, calibration, n_cands) -> tuple:
+    """Candidate ``k``'s parameters refined from the point ``y`` of the recording's refit
+    (in its group ``jobs``), and their interval: ``({parameter: value}, {parameter: (low,
+    high)})`` (see `calibrate`).
 
     Every refit starts at ``y``, the bootstrap recordings' truth (a start elsewhere, such as
     the statistic's lattice, can leave a replicate far from its optimum within the fixed
     steps and inflate the spread); the recording itself rides in the first batch, and its
-    refit from ``y`` is the refined estimate the interval is centred on."""
+    refit from ``y`` is the refined estimate the interval is centred on. The bootstrap
+    recordings are simulated in the group's sampling."""
     model, shift = jobs.problem.unpack(jnp.asarray(y))
     model = model.with_term(source.model.terms[-2]).with_term(source.model.terms[-1])
     size, n = calibration.batch, calibration.interval_replicates
     own = (np.asarray(jobs.owner) == k)[:, None]
     from_y = dataclasses.replace(jobs, starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts))
-    rows = np.concatenate([observed, source.draw(n, *sds, model=model, shift=shift)])
+    drawn = source.draw(n, *sds, model=model, shift=shift, problem=jobs.problem)
+    rows = np.concatenate([observed, drawn])
     rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
     values = []
     for i in range(0, len(rows), size):
-        _, _, yb, _ = run_statistics(from_y, rows[i : i + size], calibration.steps)
-        values += [_values(jobs, row, cand) for row in yb[:, k]]
+        _, _, yb = run_statistics([from_y], rows[i : i + size], calibration.steps, n_cands)
+        values += [_values(jobs, row, cand) for row in yb[k]]
     estimate, values = values[0], values[1 : n + 1]
     z = float(stats.norm.ppf(0.5 + calibration.interval / 2))
     out = {}

@@ -103,7 +103,8 @@ def diagnose(
             control, fitted_each = confirmed(leader)
         for k, (cand, fitted) in enumerate(zip(cands, fitted_each)):
             off = {n: float(type(cand.term).off_values[n]) for n in cand.tested}
-            fall = 1.0 - cal.nmse[k] / cal.control_nmse if cal.control_nmse > 0 else 0.0
+            control_k = cal.controls[k]  # the control in the candidate's sampling
+            fall = 1.0 - cal.nmse[k] / control_k if control_k > 0 else 0.0
             refits[cand.name] = EffectRefit(
                 cand.name,
                 fitted,
@@ -118,7 +119,7 @@ def diagnose(
             )
             if progress:
                 print(
-                    f"{cand.name}: NMSE {cal.control_nmse:.4g} -> {cal.nmse[k]:.4g}, "
+                    f"{cand.name}: NMSE {control_k:.4g} -> {cal.nmse[k]:.4g}, "
                     f"p = {cal.p_values[k]:.2g} (F test {cal.f_p_values[k]:.2g})"
                 )
         ranking = sorted(
