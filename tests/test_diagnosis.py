@@ -198,11 +198,6 @@ def test_shared_gap_case(shared_dir):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="a second round flags a pressure modulation (21 % of a residual at 1.1 noise "
-    "floors) that no null recording of the fitted model with matched variability reaches",
-)
 def test_shared_gap_case_second_round_finds_nothing(shared_dir):
     rec, _, _, d = _shared(shared_dir, "syn_gap")
     d2 = vfjax.diagnose(d.refits["GlottalGap"].result, rec)
