@@ -216,12 +216,13 @@ def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(tmp_path, shared_dir
     """`vfjax fit` takes contour files as `vfjax diagnose` does; a fit that explains nothing
     (areas of 1e12 px) exits 1 with the reason on stderr, and its JSON and report say so."""
     contour = shared_dir / "data" / "real" / "FN003_segdata.txt"
-    run = _cli("fit", contour, "--fps", "8000", "--out", "c", "--iterations", "5", cwd=tmp_path)
+    quick = ("--iterations", "5", "--restarts", "1")
+    run = _cli("fit", contour, "--fps", "8000", "--out", "c", *quick, cwd=tmp_path)
     assert run.returncode in (0, 1) and "Traceback" not in run.stderr, run.stderr
     status = json.loads((tmp_path / "c" / "FN003_fit.json").read_text())["status"]
     assert (status == "successful") == (run.returncode == 0)
     rows = [f"{i},{i / FPS:.8f},{a * 1e10 + 1:g}" for i, a in enumerate(_gaw())]
-    run = _cli("fit", _table(tmp_path, rows=rows), "--iterations", "5", cwd=tmp_path)
+    run = _cli("fit", _table(tmp_path, rows=rows), *quick, cwd=tmp_path)
     assert run.returncode == 1, run.stderr
     assert "Traceback" not in run.stderr
     assert (
