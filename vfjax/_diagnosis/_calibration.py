@@ -629,6 +629,40 @@ def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray
     return stats.f.sf(f, dofs, resid)
 
 
+def family_p_values(q_obs, nulls_q):
+    """Calibrated p-values of the candidates' F-test p-values on the recording, ``q_obs``
+    (candidates,), against those on null recordings, ``nulls_q`` (nulls, candidates): the
+    family-wise ones, the marginal ones and each null recording's largest standardised
+    statistic.
+
+    Westfall and Young's step of max-T with studentised statistics: each candidate's
+    statistic, -log of its F-test p-value, is centred and scaled by its mean and standard
+    deviation over the null recordings, so that a candidate whose statistic is large on
+    every recording (a modulation refitted after a longer warm-up than the fit's, on a
+    recording that starts in the folds' start-up transient) does not mask the others; a
+    candidate's family-wise p-value is (1 + null recordings whose largest standardised
+    statistic reaches its own) / (1 + null recordings). A candidate that never moves on
+    the null recordings (no spread) is infinitely extreme wherever it moves further on the
+    recording."""
+    obs = -np.log(np.maximum(np.asarray(q_obs, float), 1e-300))
+    nulls = -np.log(np.maximum(np.asarray(nulls_q, float), 1e-300))
+    n = len(nulls)
+    centre = nulls.mean(axis=0)
+    spread = nulls.std(axis=0)
+
+    def standardised(x):
+        d = x - centre
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(spread > 0, d / np.where(spread > 0, spread, 1.0), np.sign(d) * np.inf)
+        return np.where(np.isnan(t), 0.0, t)
+
+    t_obs, t_nulls = standardised(obs), standardised(nulls)
+    largest = t_nulls.max(axis=1)
+    family = (1 + (largest[:, None] >= t_obs[None, :]).sum(axis=0)) / (n + 1)
+    marginal = (1 + (nulls >= obs[None, :]).sum(axis=0)) / (n + 1)
+    return family, marginal, largest
+
+
 # ------------------------------------------------------------------------------ calibration
 @dataclasses.dataclass(frozen=True)
 class Calibrated:
@@ -643,12 +677,15 @@ class Calibrated:
         values: each candidate's fitted parameters on the recording (refined, for those
             with an interval).
         f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
-        p_values: family-wise p-values: (1 + null recordings whose smallest F-test p-value
-            over all candidates is at most this candidate's) / (1 + null recordings).
-        marginal_p_values: the same against each candidate's own null statistic alone.
+        p_values: family-wise p-values (`family_p_values`): (1 + null recordings whose
+            largest standardised statistic over all candidates is at least this
+            candidate's) / (1 + null recordings).
+        marginal_p_values: (1 + null recordings whose F-test p-value for this candidate is
+            at most the recording's) / (1 + null recordings).
         replicates: null recordings simulated (fewer than the most when every verdict was
             decided early).
-        null_min_f_p: the smallest F-test p-value over the candidates on each null recording.
+        null_max_t: the largest standardised statistic over the candidates on each null
+            recording.
         variability: the variability and noise of the null recordings.
         intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
             alpha, else None.
@@ -664,7 +701,7 @@ class Calibrated:
     p_values: tuple
     marginal_p_values: tuple
     replicates: int
-    null_min_f_p: tuple
+    null_max_t: tuple
     variability: Variability
     intervals: tuple
     interval_level: float
@@ -744,25 +781,23 @@ def calibrate(
     main = next(k for g in groups for k in g.owner)  # a candidate of the first group
     q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
     level_count = alpha * (calibration.replicates + 1)  # exceedances that rule a candidate out
-    nulls_min, nulls_q, controls = [], [], []
+    nulls_q, controls = [], []
     c, b = cc[1:], cb[1:]  # the first batch's null recordings
-    while len(nulls_min) < calibration.replicates:
+    while len(nulls_q) < calibration.replicates:
         if len(c) == 0:
             c, b, _ = statistics(source.draw(size, sd_t, sd_a))
         q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
         q = np.where(np.isfinite(c), q, 0.0)  # a failed null counts against
-        take = min(size, calibration.replicates - len(nulls_min))
+        take = min(size, calibration.replicates - len(nulls_q))
         nulls_q += list(q[:take])
-        nulls_min += list(q[:take].min(axis=1))
         controls += list(c[:take, main])
         c = b = []
-        exceed = (np.asarray(nulls_min)[:, None] <= q_obs[None, :]).sum(axis=0)
-        if np.all(1 + exceed > level_count):
+        family, _, _ = family_p_values(q_obs, np.asarray(nulls_q))
+        if np.all(family * (len(nulls_q) + 1) > level_count):
             break
-    nulls_min, nulls_q = np.asarray(nulls_min), np.asarray(nulls_q)
-    n = len(nulls_min)
-    family = (1 + (nulls_min[:, None] <= q_obs[None, :]).sum(axis=0)) / (n + 1)
-    marginal = (1 + (nulls_q <= q_obs[None, :]).sum(axis=0)) / (n + 1)
+    nulls_q = np.asarray(nulls_q)
+    n = len(nulls_q)
+    family, marginal, nulls_max = family_p_values(q_obs, nulls_q)
     group_of = {k: g for g in groups for k in g.owner}
     values = [_values(group_of[k], yb[k][0], c) for k, c in enumerate(cands)]
     intervals = [None] * n_cands
@@ -799,7 +834,7 @@ def calibrate(
         p_values=tuple(float(x) for x in family),
         marginal_p_values=tuple(float(x) for x in marginal),
         replicates=n,
-        null_min_f_p=tuple(float(x) for x in nulls_min),
+        null_max_t=tuple(float(x) for x in nulls_max),
         variability=variability,
         intervals=tuple(intervals),
         interval_level=calibration.interval,
