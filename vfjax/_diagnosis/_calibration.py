@@ -632,33 +632,23 @@ def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray
 def family_p_values(q_obs, nulls_q):
     """Calibrated p-values of the candidates' F-test p-values on the recording, ``q_obs``
     (candidates,), against those on null recordings, ``nulls_q`` (nulls, candidates): the
-    family-wise ones, the marginal ones and each null recording's largest standardised
+    family-wise ones, the marginal ones and each null recording's largest centred
     statistic.
 
-    Westfall and Young's step of max-T with studentised statistics: each candidate's
-    statistic, -log of its F-test p-value, is centred and scaled by its mean and standard
-    deviation over the null recordings, so that a candidate whose statistic is large on
-    every recording (a modulation refitted after a longer warm-up than the fit's, on a
-    recording that starts in the folds' start-up transient) does not mask the others; a
-    candidate's family-wise p-value is (1 + null recordings whose largest standardised
-    statistic reaches its own) / (1 + null recordings). A candidate that never moves on
-    the null recordings (no spread) is infinitely extreme wherever it moves further on the
-    recording."""
+    A step of max-T (Westfall and Young) on centred statistics: each candidate's statistic,
+    -log of its F-test p-value (a scale common to candidates of different dimension), less
+    its median over the null recordings, so that a candidate whose refit falls far on every
+    recording (a modulation refitted after a longer warm-up than the fit's, on a recording
+    that starts within the folds' start-up transient) does not mask the others, while the
+    rare large falls that any candidate can show on a null recording count at their size. A
+    candidate's family-wise p-value is (1 + null recordings whose largest centred statistic
+    reaches its own) / (1 + null recordings)."""
     obs = -np.log(np.maximum(np.asarray(q_obs, float), 1e-300))
     nulls = -np.log(np.maximum(np.asarray(nulls_q, float), 1e-300))
     n = len(nulls)
-    centre = nulls.mean(axis=0)
-    spread = nulls.std(axis=0)
-
-    def standardised(x):
-        d = x - centre
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(spread > 0, d / np.where(spread > 0, spread, 1.0), np.sign(d) * np.inf)
-        return np.where(np.isnan(t), 0.0, t)
-
-    t_obs, t_nulls = standardised(obs), standardised(nulls)
-    largest = t_nulls.max(axis=1)
-    family = (1 + (largest[:, None] >= t_obs[None, :]).sum(axis=0)) / (n + 1)
+    centre = np.median(nulls, axis=0)
+    largest = (nulls - centre).max(axis=1)
+    family = (1 + (largest[:, None] >= (obs - centre)[None, :]).sum(axis=0)) / (n + 1)
     marginal = (1 + (nulls >= obs[None, :]).sum(axis=0)) / (n + 1)
     return family, marginal, largest
 
@@ -678,13 +668,13 @@ class Calibrated:
             with an interval).
         f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
         p_values: family-wise p-values (`family_p_values`): (1 + null recordings whose
-            largest standardised statistic over all candidates is at least this
-            candidate's) / (1 + null recordings).
+            largest centred statistic over all candidates is at least this candidate's) /
+            (1 + null recordings).
         marginal_p_values: (1 + null recordings whose F-test p-value for this candidate is
             at most the recording's) / (1 + null recordings).
         replicates: null recordings simulated (fewer than the most when every verdict was
             decided early).
-        null_max_t: the largest standardised statistic over the candidates on each null
+        null_max_t: the largest centred statistic over the candidates on each null
             recording.
         variability: the variability and noise of the null recordings.
         intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
