@@ -9,7 +9,12 @@ import pytest
 from scipy.optimize import least_squares
 
 import vfjax
-from vfjax._diagnosis._calibration import Calibration, calibrate, levenberg_marquardt
+from vfjax._diagnosis._calibration import (
+    Calibration,
+    calibrate,
+    family_p_values,
+    levenberg_marquardt,
+)
 from vfjax.diagnosis import default_candidates
 
 FPS = 4000.0
@@ -102,3 +107,22 @@ def test_a_hidden_gap_is_significant_against_every_null_recording(shared_dir):
     assert cal.p_values[i] == pytest.approx(1 / (cal.replicates + 1))
     assert cal.values[i]["a_gap"] == pytest.approx(0.01, rel=0.2)  # the answer: 0.01 cm²
     assert all(p > 0.05 for j, p in enumerate(cal.p_values) if j != i)
+
+
+def test_family_p_values_of_a_candidate_shifted_on_every_recording():
+    """Two candidates, 99 null recordings: the second's statistic (-log of its F-test p) is
+    50 larger on every recording, the first's is exponential. The recording's first
+    statistic beyond every null's is 1/100 family-wise (the shifted candidate does not mask
+    it); the second at its null median is not significant; ranks give the marginal values."""
+    rng = np.random.default_rng(3)
+    stat = np.stack([rng.exponential(1.0, 99), 50.0 + rng.exponential(1.0, 99)], axis=1)
+    observed = np.array([stat[:, 0].max() + 5.0, np.median(stat[:, 1])])
+    family, marginal, largest = family_p_values(np.exp(-observed), np.exp(-stat))
+    assert family[0] == pytest.approx(1 / 100)
+    assert family[1] > 0.4
+    assert marginal[0] == pytest.approx(1 / 100)
+    assert marginal[1] == pytest.approx(51 / 100)  # (1 + 50 nulls at or above) / 100
+    centred = stat - np.median(stat, axis=0)
+    np.testing.assert_allclose(largest, centred.max(axis=1))
+    # the family-wise value is never below the marginal one
+    assert np.all(family >= marginal)
