@@ -466,6 +466,17 @@ def _fit_point(problem, result: FitResult) -> np.ndarray:
     return y
 
 
+def _point_of(problem, fit: FitResult) -> np.ndarray:
+    """The point of ``problem`` where its model is ``fit``'s (its effects held off but those
+    ``fit`` has): exact where ``fit`` has the problem's warm-up (`_fit_point`); else the
+    fitted parameters with the time shift found afresh on the grid of shifts (a longer
+    warm-up moves the phase of the cycle at the first frame) and S projected."""
+    if fit.sampling.warmup == float(problem.grid.t_start):
+        return _fit_point(problem, fit)
+    z = _coordinates(problem, fit.params, 0.0)
+    return np.asarray(_start(problem, jnp.asarray(z))[0])
+
+
 def refit_groups(result: FitResult, recording: Recording, cands, estimates, steps: int) -> list:
     """The statistic's refits of ``result`` on ``recording``, in groups of one warm-up each
     (`refit_jobs`): the candidates that need no longer warm-up than the fit's are refitted
@@ -478,14 +489,22 @@ def refit_groups(result: FitResult, recording: Recording, cands, estimates, step
     with as many jobs (padded with copies of the control, owner -1), so that one compiled
     program serves them all: the warm-up is data."""
     warmups = [max(result.sampling.warmup, float(type(c.term).min_warmup)) for c in cands]
-    groups = []
-    for w in sorted(set(warmups)):
-        members = [k for k, wk in enumerate(warmups) if wk == w]
-        groups.append(refit_jobs(result, recording, cands, estimates, members, w))
+    levels = sorted(set(warmups))
+    groups = [
+        refit_jobs(
+            result,
+            recording,
+            cands,
+            estimates,
+            [k for k in range(len(cands)) if warmups[k] == w],
+            w,
+        )
+        for w in levels
+    ]
     n_jobs = max(len(g.owner) for g in groups)
     width = max(g.bases.shape[1] for g in groups)
     out = []
-    for g, w in zip(groups, sorted(set(warmups))):
+    for g, w in zip(groups, levels):
         pad = n_jobs - len(g.owner)
         bases = jnp.pad(g.bases, ((0, 0), (0, width - g.bases.shape[1]), (0, 0)))
         g = dataclasses.replace(
@@ -537,11 +556,7 @@ def refit_jobs(
     def coords(values):
         return np.r_[_coordinates(problem, values), np.full(1 + problem.fit_s, np.nan)]
 
-    if warmup == result.sampling.warmup:  # the fit's own point
-        y0 = _fit_point(problem, result)
-    else:  # its time shift found afresh on the grid of shifts (a longer warm-up moves the
-        # phase of the cycle at the first frame), S projected
-        y0 = np.asarray(_start(problem, jnp.zeros(len(names)))[0])
+    y0 = _point_of(problem, result)
     frees = [[1.0 if n in fitted else 0.0 for n in names]]
     starts, owner = [], []
     for k in members:
@@ -551,11 +566,7 @@ def refit_jobs(
         if _single_basin(c):
             found = None if estimates is None else estimates[k]
             if found is not None and found.nmse < result.nmse:
-                if found.sampling.warmup == warmup:
-                    begin.append(_fit_point(problem, found))
-                else:
-                    z = _coordinates(problem, found.params, 0.0)
-                    begin.append(np.asarray(_start(problem, jnp.asarray(z))[0]))
+                begin.append(_point_of(problem, found))
             else:
                 begin.append(np.full(y0.size, np.nan))
         for b in begin:
@@ -660,7 +671,8 @@ class Calibrated:
 
     Attributes:
         candidates: the candidates' names, in order.
-        control_nmse: the control refit's NMSE on the recording, in the fit's sampling.
+        control_nmse: the control refit's NMSE on the recording, in the fit's sampling
+            (after the shortest warm-up a candidate needs, where that is longer).
         controls: the control refit's NMSE that each candidate's is compared with: in the
             candidate's sampling (``control_nmse``, or after a candidate's longer warm-up).
         nmse: each candidate's refit NMSE on the recording (never above its control's).
@@ -745,11 +757,11 @@ def calibrate(
     own, _, _ = prepare(
         result.model, recording, tuple(result.params), result.sampling, period, None
     )
-    horizon = max(
+    latest_start = max(
         float(g.problem.grid.t_start) + float(g.problem.grid.max_time_shift) for g in groups
     )
     source = _NullSource(
-        own, result.model, result.time_shift, recording, period, calibration.seed, horizon
+        own, result.model, result.time_shift, recording, period, calibration.seed, latest_start
     )
     fitted, noise = source.clean[: recording.n_frames], source.noise_sd
     size = calibration.batch
@@ -768,7 +780,7 @@ def calibrate(
 
     rows = [observed, source.draw(size - 1, sd_t, sd_a)]
     cc, cb, yb = statistics(np.concatenate(rows))
-    main = next(k for g in groups for k in g.owner)  # a candidate of the first group
+    main = groups[0].owner[0]  # a candidate of the shortest warm-up's group
     q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
     level_count = alpha * (calibration.replicates + 1)  # exceedances that rule a candidate out
     nulls_q, controls = [], []
@@ -796,11 +808,7 @@ def calibrate(
             jobs, y = group_of[k], yb[k][0]
             found = None if estimates is None else estimates[k]
             if found is not None and found.nmse < cb[0, k]:
-                if found.sampling.warmup == float(jobs.problem.grid.t_start):
-                    y = _fit_point(jobs.problem, found)
-                else:
-                    z = _coordinates(jobs.problem, found.params, 0.0)
-                    y = np.asarray(_start(jobs.problem, jnp.asarray(z))[0])
+                y = _point_of(jobs.problem, found)
             values[k], intervals[k] = _interval(
                 jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands
             )
@@ -813,10 +821,9 @@ def calibrate(
         noise,
         period,
     )
-    fit_group = [k for k in range(n_cands) if group_of[k] is groups[0]]
     return Calibrated(
         candidates=tuple(c.name for c in cands),
-        control_nmse=float(cc[0, fit_group[0]]),
+        control_nmse=float(cc[0, main]),
         controls=tuple(float(x) for x in cc[0]),
         nmse=tuple(float(x) for x in cb[0]),
         values=tuple(values),
