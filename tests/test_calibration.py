@@ -92,6 +92,27 @@ def test_the_statistics_solver_finds_scipys_least_squares():
     assert float(cost) == pytest.approx(2 * truth.cost, rel=1e-9)
 
 
+def test_the_statistics_solver_steps_short_of_a_jump_at_once():
+    # A residual with a jump across p0 = 0.1 (as one more cycle reaching contact changes
+    # the GAW near a grazing closure); the best point lies under the jump. The Gauss-Newton
+    # step from the origin lands beyond it, and so does every step damped by less than 9: a
+    # solver that only raises its damping by a few times after each failure keeps the
+    # origin (sum of squares 2) for its first several steps. One step with damping 10, the
+    # largest of the first step's trials, reaches p = (1/11, 1/11): 2 (10/11)^2.
+    def residual(p):
+        return jnp.stack([p[0] - 1.0, p[1] - 1.0, 10.0 * (p[0] > 0.1)])
+
+    basis = jnp.eye(2)
+    costs = []
+    for steps in (1, 6):
+        solve = jax.jit(levenberg_marquardt, static_argnums=(0, 3))
+        found, cost = solve(residual, jnp.zeros(2), basis, steps)
+        assert float(found[0]) < 0.1
+        costs.append(float(cost))
+    assert costs[0] == pytest.approx(2 * (10 / 11) ** 2, rel=1e-12)
+    assert costs[1] < costs[0]
+
+
 def _shared(shared_dir, name):
     return vfjax.load_recording(shared_dir / "data" / "synthetic" / f"{name}.csv")
 
