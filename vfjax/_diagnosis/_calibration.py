@@ -612,9 +612,10 @@ def refit_jobs(
 
 def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
     """The statistic of every group's refits on the recordings ``data`` (rows): each
-    candidate's control NMSE, its group's (recordings, candidates), each candidate's best
-    refit NMSE (recordings, candidates) and the points of those refits (per candidate, an
-    array (recordings, n_y) in its group's coordinates)."""
+    candidate's control NMSE (recordings, candidates): its group's, or the first group's
+    (the fit's sampling) where that is lower; each candidate's best refit NMSE (recordings,
+    candidates) and the points of those refits (per candidate, an array (recordings, n_y)
+    in its group's coordinates)."""
     controls = np.full((len(data), n_cands), np.nan)
     best_cost = np.full((len(data), n_cands), np.inf)
     best_y = [None] * n_cands
@@ -640,7 +641,12 @@ def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
             controls[:, k] = cc
             best_cost[:, k] = cj[np.arange(len(data)), pick]
             best_y[k] = yj[np.arange(len(data)), pick]
-    return controls, best_cost, best_y
+    # a candidate refitted after a longer warm-up answers to the best model without any
+    # effect, in whichever sampling: the control after its warm-up can fit the recording far
+    # worse than the fit's own (a state at the first frame that a longer warm-up moves into
+    # another regime, near a grazing closure), and a fall from there is no evidence
+    first = groups[0].owner[0]  # a candidate of the first group
+    return np.minimum(controls, controls[:, first : first + 1]), best_cost, best_y
 
 
 def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray:

@@ -17,8 +17,11 @@ class EffectRefit:
         result: the search's refit (`FitResult`, swarm and polish; its model holds the
             effect), where an extension starts.
         nmse: the error of the calibrated refit (`vfjax.Calibration`: from the control's
-            optimum, never above it).
-        fall: share of the control's squared error it removes, 1 - nmse / control NMSE.
+            optimum in the candidate's sampling, never above it).
+        fall: share of the control's squared error it removes, 1 - nmse / control NMSE,
+            the control being the best model without any effect (in the fit's sampling, or
+            after the candidate's longer warm-up where that fits better); negative where a
+            refit after a longer warm-up ends above the fit's own control.
         values: the effect's fitted parameters (the calibrated refit's).
         p_value: family-wise p-value, calibrated on null recordings of the fitted model.
         f_p_value: the F test's p-value of the fall (uncalibrated: the standardisation that
