@@ -674,11 +674,10 @@ def family_p_values(q_obs, nulls_q):
     A step of max-T (Westfall and Young) on centred statistics: each candidate's statistic,
     -log of its F-test p-value (a scale common to candidates of different dimension), less
     its median over the null recordings, so that a candidate whose refit falls far on every
-    recording (a modulation refitted after a longer warm-up than the fit's, on a recording
-    that starts within the folds' start-up transient) does not mask the others, while the
-    rare large falls that any candidate can show on a null recording count at their size. A
-    candidate's family-wise p-value is (1 + null recordings whose largest centred statistic
-    reaches its own) / (1 + null recordings)."""
+    recording does not mask the others, while the rare large falls that any candidate can
+    show on a null recording count at their size. A candidate's family-wise p-value is (1 +
+    null recordings whose largest centred statistic reaches its own) / (1 + null
+    recordings)."""
     obs = -np.log(np.maximum(np.asarray(q_obs, float), 1e-300))
     nulls = -np.log(np.maximum(np.asarray(nulls_q, float), 1e-300))
     n = len(nulls)
