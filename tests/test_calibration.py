@@ -103,9 +103,9 @@ def test_the_statistics_solver_steps_short_of_a_jump_at_once():
         return jnp.stack([p[0] - 1.0, p[1] - 1.0, 10.0 * (p[0] > 0.1)])
 
     basis = jnp.eye(2)
+    solve = jax.jit(levenberg_marquardt, static_argnums=(0, 3))
     costs = []
     for steps in (1, 6):
-        solve = jax.jit(levenberg_marquardt, static_argnums=(0, 3))
         found, cost = solve(residual, jnp.zeros(2), basis, steps)
         assert float(found[0]) < 0.1
         costs.append(float(cost))

@@ -697,9 +697,12 @@ class Calibrated:
         candidates: the candidates' names, in order.
         control_nmse: the control refit's NMSE on the recording, in the fit's sampling
             (after the shortest warm-up a candidate needs, where that is longer).
-        controls: the control refit's NMSE that each candidate's is compared with: in the
-            candidate's sampling (``control_nmse``, or after a candidate's longer warm-up).
-        nmse: each candidate's refit NMSE on the recording (never above its control's).
+        controls: the control refit's NMSE that each candidate's is compared with: the
+            best model without any effect, ``control_nmse`` or, for a candidate refitted
+            after a longer warm-up, the control refitted there where that is lower.
+        nmse: each candidate's refit NMSE on the recording (never above the control's in
+            its own sampling; above ``controls`` where a refit after a longer warm-up ends
+            above the fit's own control).
         values: each candidate's fitted parameters on the recording (refined, for those
             with an interval).
         f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
