@@ -10,6 +10,7 @@ from scipy.optimize import least_squares
 
 import vfjax
 from vfjax._diagnosis._calibration import (
+    Calibrated,
     Calibration,
     calibrate,
     family_p_values,
@@ -138,12 +139,51 @@ def test_family_p_values_of_a_candidate_shifted_on_every_recording():
     rng = np.random.default_rng(3)
     stat = np.stack([rng.exponential(1.0, 99), 50.0 + rng.exponential(1.0, 99)], axis=1)
     observed = np.array([stat[:, 0].max() + 5.0, np.median(stat[:, 1])])
-    family, marginal, largest = family_p_values(np.exp(-observed), np.exp(-stat))
+    family, marginal, largest, centred_obs = family_p_values(np.exp(-observed), np.exp(-stat))
     assert family[0] == pytest.approx(1 / 100)
     assert family[1] > 0.4
     assert marginal[0] == pytest.approx(1 / 100)
     assert marginal[1] == pytest.approx(51 / 100)  # (1 + 50 nulls at or above) / 100
     centred = stat - np.median(stat, axis=0)
     np.testing.assert_allclose(largest, centred.max(axis=1))
+    np.testing.assert_allclose(centred_obs, observed - np.median(stat, axis=0))
     # the family-wise value is never below the marginal one
     assert np.all(family >= marginal)
+
+
+def test_candidates_beyond_every_null_recording_rank_by_their_centred_statistic():
+    """Two candidates beyond every one of 99 null recordings tie at p = 1/100. The second
+    falls further on the recording (-log F p of 60 against 40), but as far as 30 on every
+    null recording (a flexible effect that absorbs variability): beyond its nulls by 30
+    against the first's 40, it ranks second. A third, not significant, comes last."""
+    rng = np.random.default_rng(5)
+    stat = np.stack(
+        [
+            rng.exponential(1.0, 99),
+            30.0 + rng.exponential(1.0, 99),
+            rng.exponential(1.0, 99),
+        ],
+        axis=1,
+    )
+    observed = np.array([40.0, 60.0, 0.5])
+    family, marginal, largest, centred = family_p_values(np.exp(-observed), np.exp(-stat))
+    np.testing.assert_allclose(family[:2], 1 / 100)
+    cal = Calibrated(
+        candidates=("A", "B", "C"),
+        control_nmse=1e-3,
+        controls=(1e-3,) * 3,
+        nmse=(5e-4, 4e-4, 1e-3),
+        values=({},) * 3,
+        f_p_values=tuple(np.exp(-observed)),
+        p_values=tuple(family),
+        marginal_p_values=tuple(marginal),
+        replicates=99,
+        null_max_t=tuple(largest),
+        centred=tuple(centred),
+        variability=None,
+        intervals=(None,) * 3,
+        interval_level=0.95,
+    )
+    assert cal.ranking() == ["A", "B", "C"]
+    # the uncentred statistic (the F test alone) would put B first
+    assert np.argmin(cal.f_p_values) == 1

@@ -665,11 +665,16 @@ def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray
     return stats.f.sf(f, dofs, resid)
 
 
+def _statistic(q) -> np.ndarray:
+    """The test statistic of F-test p-values ``q``: -log q."""
+    return -np.log(np.maximum(np.asarray(q, float), 1e-300))
+
+
 def family_p_values(q_obs, nulls_q):
     """Calibrated p-values of the candidates' F-test p-values on the recording, ``q_obs``
     (candidates,), against those on null recordings, ``nulls_q`` (nulls, candidates): the
-    family-wise ones, the marginal ones and each null recording's largest centred
-    statistic.
+    family-wise ones, the marginal ones, each null recording's largest centred statistic and
+    the recording's centred statistics.
 
     A step of max-T (Westfall and Young) on centred statistics: each candidate's statistic,
     -log of its F-test p-value (a scale common to candidates of different dimension), less
@@ -678,14 +683,13 @@ def family_p_values(q_obs, nulls_q):
     show on a null recording count at their size. A candidate's family-wise p-value is (1 +
     null recordings whose largest centred statistic reaches its own) / (1 + null
     recordings)."""
-    obs = -np.log(np.maximum(np.asarray(q_obs, float), 1e-300))
-    nulls = -np.log(np.maximum(np.asarray(nulls_q, float), 1e-300))
+    obs, nulls = _statistic(q_obs), _statistic(nulls_q)
     n = len(nulls)
     centre = np.median(nulls, axis=0)
     largest = (nulls - centre).max(axis=1)
     family = (1 + (largest[:, None] >= (obs - centre)[None, :]).sum(axis=0)) / (n + 1)
     marginal = (1 + (nulls >= obs[None, :]).sum(axis=0)) / (n + 1)
-    return family, marginal, largest
+    return family, marginal, largest, obs - centre
 
 
 # ------------------------------------------------------------------------------ calibration
@@ -715,6 +719,11 @@ class Calibrated:
             decided early).
         null_max_t: the largest centred statistic over the candidates on each null
             recording.
+        centred: each candidate's centred statistic on the recording (its -log F-test
+            p-value less the median over the null recordings): what its family-wise p-value
+            compares with ``null_max_t``, and what orders candidates whose p-values tie (at
+            the smallest, 1 / (1 + replicates), when several fall beyond every null
+            recording).
         variability: the variability and noise of the null recordings.
         intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
             alpha, else None.
@@ -731,9 +740,20 @@ class Calibrated:
     marginal_p_values: tuple
     replicates: int
     null_max_t: tuple
+    centred: tuple
     variability: Variability
     intervals: tuple
     interval_level: float
+
+    def ranking(self) -> list[str]:
+        """The candidates' names, best first: by family-wise p-value, ties (several
+        candidates beyond every null recording) by the larger centred statistic, the quantity
+        that p-value ranks, then by the lower refit NMSE."""
+        order = sorted(
+            range(len(self.candidates)),
+            key=lambda k: (self.p_values[k], -self.centred[k], self.nmse[k]),
+        )
+        return [self.candidates[k] for k in order]
 
 
 def _dofs(cands) -> np.ndarray:
@@ -821,12 +841,12 @@ def calibrate(
         nulls_q += list(q[:take])
         controls += list(c[:take, main])
         c = b = []
-        family, _, _ = family_p_values(q_obs, np.asarray(nulls_q))
+        family = family_p_values(q_obs, np.asarray(nulls_q))[0]
         if np.all(family * (len(nulls_q) + 1) > level_count):
             break
     nulls_q = np.asarray(nulls_q)
     n = len(nulls_q)
-    family, marginal, nulls_max = family_p_values(q_obs, nulls_q)
+    family, marginal, nulls_max, centred = family_p_values(q_obs, nulls_q)
     group_of = {k: g for g in groups for k in g.owner}
     values = [_values(group_of[k], yb[k][0], c) for k, c in enumerate(cands)]
     intervals = [None] * n_cands
@@ -859,6 +879,7 @@ def calibrate(
         marginal_p_values=tuple(float(x) for x in marginal),
         replicates=n,
         null_max_t=tuple(float(x) for x in nulls_max),
+        centred=tuple(float(x) for x in centred),
         variability=variability,
         intervals=tuple(intervals),
         interval_level=calibration.interval,
