@@ -153,7 +153,7 @@ def _shared(shared_dir, name, **options):
 
 
 #: A level whose smallest p-value (1/40) takes three batches of null recordings instead of
-#: the default's seven (1/112 at alpha 0.01; notebook 02 runs the default level).
+#: the default's seven (1/112 at alpha 0.01; notebook 02 uses it in the suite too).
 QUICK_LEVEL = {
     "criteria": vfjax.Criteria(alpha=0.05),
     "calibration": vfjax.Calibration(replicates=39),

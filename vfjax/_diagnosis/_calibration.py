@@ -347,13 +347,17 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     damping rises by `_DAMPING_RISE`. The Jacobian costs most of a step, so the trials
     add about a third to it."""
 
-    c0 = jnp.sum(residual(y0) ** 2)
-    c0 = jnp.where(jnp.isfinite(c0), c0, jnp.inf)
+    if steps < 1:
+        c0 = jnp.sum(residual(y0) ** 2)
+        return y0, jnp.where(jnp.isfinite(c0), c0, jnp.inf)
     ratios = jnp.asarray(_DAMPING_TRIALS, y0.dtype)
 
     def step(carry, _):
-        y, c, damping = carry
+        y, _, damping = carry
+        # the residual at y comes with its Jacobian: no simulation of its own
         r, j = jacobian_columns(residual, y, basis)
+        c = jnp.sum(r**2)
+        c = jnp.where(jnp.isfinite(c), c, jnp.inf)
         h = j.T @ j
         g = j.T @ r
         d = jnp.diag(h)
@@ -373,7 +377,8 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
         damping = jnp.clip(jnp.where(better, levels[best], damping * _DAMPING_RISE), 1e-12, 1e12)
         return (y, c, damping), None
 
-    (y, c, _), _ = jax.lax.scan(step, (y0, c0, jnp.asarray(1e-2, y0.dtype)), None, length=steps)
+    init = (y0, jnp.asarray(jnp.inf, y0.dtype), jnp.asarray(1e-2, y0.dtype))
+    (y, c, _), _ = jax.lax.scan(step, init, None, length=steps)
     return y, c
 
 

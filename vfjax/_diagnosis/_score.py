@@ -74,27 +74,24 @@ def _sampler(result: FitResult) -> _Sampler:
 
 
 @eqx.filter_jit
-def _columns(sampler, model, names, shift, variants, tested, points):
-    """The fitted GAW, its derivatives d/dlog(p) of the fitted parameters ``names`` (d/dp
-    where p = 0) and d/d(shift), and, for each of the models ``variants`` (stacked), the
-    derivatives d GAW / d(``tested``) at its row of ``points``. One program for the whole
-    score test."""
-    values = jnp.stack([model.params()[n] for n in names])
-    scale = jnp.where(values != 0.0, values, 1.0)
+def _columns(sampler, names, tested, models, points, tangents):
+    """GAWs and their derivatives, one forward-mode simulation per job, all jobs side by side
+    (one vmapped jvp: one copy of the simulator in the program, whatever the candidates).
 
-    def g(p, t):
-        return sampler.gaw(model.set(**{n: p[i] for i, n in enumerate(names)}), t)
+    Job j simulates ``models[j]`` with ``tested`` at ``points[j]`` and returns its GAW and
+    the derivative along ``tangents[j]``, a direction in (``names``, ``tested``, time shift).
+    Returns (jobs, frames) GAWs and (jobs, frames) derivatives."""
+    n_names, n_tested = len(names), len(tested)
 
-    jp, jt = jax.jacfwd(g, argnums=(0, 1))(values, shift)
+    def gaw(z, model):
+        values = {n: z[i] for i, n in enumerate(names)}
+        values.update({n: z[n_names + i] for i, n in enumerate(tested)})
+        return sampler.gaw(model.set(**values), z[n_names + n_tested])
 
-    def one(variant, point):
-        def ge(p):
-            return sampler.gaw(variant.set(**{n: p[i] for i, n in enumerate(tested)}), shift)
+    def one(model, z, dz):
+        return jax.jvp(lambda y: gaw(y, model), (z,), (dz,))
 
-        return jax.jacfwd(ge)(point)
-
-    effects = jax.vmap(one)(variants, points)
-    return g(values, shift), jnp.concatenate([jp * scale, jt[:, None]], axis=1), effects
+    return jax.vmap(one)(models, points, tangents)
 
 
 def _stack(models):
@@ -158,40 +155,64 @@ def score_tests(
 
 def sensitivities(result: FitResult, cands: Sequence[Candidate]):
     """The fitted GAW (frames,), its derivatives in the fitted parameters and the time shift
-    (frames, fitted + 1) and each candidate's derivatives (settings, frames, tested), one
-    setting per grid point and direction, over the recording's frames.
+    (frames, fitted + 1; d/dlog(p), or d/dp where p = 0) and each candidate's derivatives
+    (settings, frames, tested), one setting per grid point and direction, over the
+    recording's frames.
 
     One compiled program (`_columns`) serves them all, through the fitted model extended by
-    every candidate (`_candidate_jobs`); candidates whose parameter names clash run one
-    program call each."""
+    every candidate (`_candidate_jobs`): the fitted parameters' derivatives with every
+    candidate off (where they change nothing), each candidate's at its settings with the
+    others off. Candidates whose parameter names clash run one program call each."""
     n = result.sampling.n_frames
     together = _candidate_jobs(result.model, cands)
     if together is not None:
         groups = [(list(cands), together)]
     else:
         groups = [([c], _candidate_jobs(result.model, [c])) for c in cands]
+    names = tuple(result.params)
+    fitted = np.array([float(result.model.params()[n]) for n in names])
+    scale = np.where(fitted != 0.0, fitted, 1.0)
     columns = []
     for group, jobs in groups:
-        g0, jf, cols = (
-            np.asarray(a)[..., :n, :] if a.ndim > 1 else np.asarray(a)[:n]
+        width = len(names) + len(jobs.tested) + 1
+        basis = np.eye(width)
+        # jobs: the fitted parameters and the shift with every candidate off, then each
+        # setting's derivatives along its candidate's tested parameters
+        models = [jobs.base] * (len(names) + 1)
+        points = [list(fitted) + jobs.off + [result.time_shift]] * (len(names) + 1)
+        tangents = [basis[i] for i in range(len(names))] + [basis[-1]]
+        for c, rows in zip(group, jobs.rows):
+            for v in range(rows.start, rows.stop):
+                for t in c.tested:
+                    models.append(jobs.variants[v])
+                    points.append(list(fitted) + list(jobs.points[v]) + [result.time_shift])
+                    tangents.append(basis[len(names) + jobs.tested.index(t)])
+        gaws, derivatives = (
+            np.asarray(a)[:, :n]
             for a in _columns(
                 _sampler(result),
-                result.model,
-                tuple(result.params),
-                jnp.asarray(result.time_shift),
-                _stack(jobs.variants),
+                names,
                 jobs.tested,
-                jnp.asarray(jobs.points),
+                _stack(models),
+                jnp.asarray(points, dtype=float),
+                jnp.asarray(np.stack(tangents)),
             )
         )
-        columns += [
-            cols[rows][:, :, [jobs.tested.index(t) for t in c.tested]]
-            for c, rows in zip(group, jobs.rows)
-        ]
+        g0 = gaws[0]
+        jf = derivatives[: len(names) + 1].T * np.append(scale, 1.0)
+        k = len(names) + 1
+        for c, rows in zip(group, jobs.rows):
+            m = len(c.tested)
+            count = rows.stop - rows.start
+            cols = derivatives[k : k + count * m].reshape(count, m, n)
+            columns.append(cols.transpose(0, 2, 1))
+            k += count * m
     return g0, jf, columns
 
 
 class _Jobs(NamedTuple):
+    base: object  # the extended model with every candidate off
+    off: list  # the values of ``tested`` that switch every candidate off
     variants: list  # models, one per candidate and setting
     tested: tuple  # the tested parameters of all candidates
     points: list  # per variant, the values of ``tested`` where the derivatives are taken
@@ -218,7 +239,7 @@ def _candidate_jobs(model, cands) -> _Jobs | None:
         rows.append(slice(len(variants), len(variants) + len(settings)))
         variants += [wide.set(**setting) for setting in settings]
         points += [[at[n] for n in tested]] * len(settings)
-    return _Jobs(variants, tested, points, rows)
+    return _Jobs(wide.set(**off), [off[n] for n in tested], variants, tested, points, rows)
 
 
 def period_frames(recording) -> int:
