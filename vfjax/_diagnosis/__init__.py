@@ -48,7 +48,8 @@ An effect is *needed* when its calibrated p-value is at most ``Criteria.alpha`` 
 interval of its size (a parametric bootstrap: recordings simulated from the model with the
 effect at its refined values, each refitted from them) excludes its off-value; significant
 with an interval that includes it, the effect is "detectable but not identifiable".
-Candidates are ranked by calibrated p-value (by score p-value without refits). When no
+Candidates are ranked by calibrated p-value, ties (several beyond every null recording)
+by their centred statistic (`Calibrated.ranking`); by score p-value without refits. When no
 effect is needed, `Diagnosis.verdict` says so in words, with where the model fails
 (`vfjax.compare`).
 

@@ -75,7 +75,7 @@ class Diagnosis:
         noise_nmse: the NMSE that measurement noise alone would leave (estimated from the
             GAW's frame-to-frame differences), a floor no model can beat.
         verdict: the conclusion in words.
-        calibrated: the calibration's record (`vfjax.Calibrated`: null recordings, their
+        calibrated: the calibration's record (`vfjax.diagnosis.Calibrated`: null recordings, their
             variability, p-values), None without refits.
     """
 
