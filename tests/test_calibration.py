@@ -187,3 +187,34 @@ def test_candidates_beyond_every_null_recording_rank_by_their_centred_statistic(
     assert cal.ranking() == ["A", "B", "C"]
     # the uncentred statistic (the F test alone) would put B first
     assert np.argmin(cal.f_p_values) == 1
+
+
+def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypatch):
+    """`run_statistics` with two groups of refits: the fit's sampling (candidates 0 and 1)
+    and a longer warm-up (candidate 2). Each candidate keeps its best job; candidate 2's
+    control is the lower of its group's and the first group's, recording by recording."""
+    from types import SimpleNamespace
+
+    from vfjax._diagnosis import _calibration as cal
+
+    # per group: the control's NMSE and each job's NMSE on two recordings
+    results = {
+        "fit": (np.array([1.0, 2.0]), np.array([[0.9, 0.5, 0.7], [1.5, 1.8, 2.0]])),
+        "long": (np.array([3.0, 1.2]), np.array([[2.5, 2.0], [1.1, 0.9]])),
+    }
+
+    def fake(problem, y0, starts, frees, bases, data, steps, mesh):
+        cc, cj = results[problem]
+        yj = np.stack([np.stack([np.full(2, c) for c in row]) for row in cj])
+        return cc, np.zeros((2, 2)), cj, yj
+
+    monkeypatch.setattr(cal, "_statistics", fake)
+    groups = [
+        SimpleNamespace(problem="fit", y0=0, starts=0, frees=0, bases=0, owner=(0, 1, 1)),
+        SimpleNamespace(problem="long", y0=0, starts=0, frees=0, bases=0, owner=(2, 2)),
+    ]
+    controls, best, points = cal.run_statistics(groups, np.zeros((2, 5)), steps=3, n_cands=3)
+    np.testing.assert_allclose(controls[:, :2], [[1.0, 1.0], [2.0, 2.0]])
+    np.testing.assert_allclose(controls[:, 2], [1.0, 1.2])  # min(3.0, 1.0), min(1.2, 2.0)
+    np.testing.assert_allclose(best, [[0.9, 0.5, 2.0], [1.5, 1.8, 0.9]])
+    np.testing.assert_allclose(points[2][:, 0], [2.0, 0.9])  # the best job's point
