@@ -342,10 +342,13 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     the solve traces anywhere (inside `jax.shard_map` too). Each step: the Jacobian's
     columns by forward mode (one batched jvp, which also gives the residual) and damped
     Gauss-Newton steps with Marquardt's scaling at four dampings spread over six decades
-    about the current one (`_DAMPING_TRIALS`), evaluated side by side; the best one is
-    taken if it improves, and its damping becomes the current one; if none improves, the
-    damping rises by `_DAMPING_RISE`. The Jacobian costs most of a step, so the trials
-    add about a third to it."""
+    about the current one (`_DAMPING_TRIALS`), evaluated one after the other; the best one
+    is taken if it improves, and its damping becomes the current one; if none improves, the
+    damping rises by `_DAMPING_RISE`. The Jacobian costs most of a step.
+
+    The trials run in a `lax.map`, not a `vmap`: vmapped, the statistic's program split
+    over two CPU devices (`jax.shard_map`) hung (jax 0.10.2: the first call on the shared
+    syn_gap's fit with its gap never returned, every XLA thread idle)."""
 
     if steps < 1:
         c0 = jnp.sum(residual(y0) ** 2)
@@ -369,7 +372,7 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
             return point, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
         levels = damping * ratios
-        points, costs = jax.vmap(trial)(levels)
+        points, costs = jax.lax.map(trial, levels)  # see the docstring
         best = jnp.argmin(costs)
         better = costs[best] < c
         y = jnp.where(better, points[best], y)
