@@ -218,3 +218,42 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
     np.testing.assert_allclose(controls[:, 2], [1.0, 1.2])  # min(3.0, 1.0), min(1.2, 2.0)
     np.testing.assert_allclose(best, [[0.9, 0.5, 2.0], [1.5, 1.8, 0.9]])
     np.testing.assert_allclose(points[2][:, 0], [2.0, 0.9])  # the best job's point
+
+
+_TWO_DEVICE_STATISTIC = """
+import numpy as np, vfjax
+from vfjax.cli import use_cpu_cores
+from vfjax._diagnosis import _calibration as C
+from vfjax._diagnosis._candidates import as_candidates
+assert use_cpu_cores(2) == 2
+rec = vfjax.load_recording({path!r})
+res = vfjax.diagnosis.extend(
+    vfjax.fit_recording(rec, progress=False), rec, vfjax.GlottalGap(a_gap=0.01)
+)
+cands = as_candidates(res.model, None)
+groups = C.refit_groups(res, rec, cands, None, C.Calibration().steps)
+own = np.asarray(groups[0].problem.measured)
+data = np.stack([own + np.random.default_rng(i).normal(0, 2, own.shape) for i in range(16)])
+for _ in range(3):
+    control, best, _ = C.run_statistics(groups, data, C.Calibration().steps, len(cands))
+    assert np.all(np.isfinite(control)) and np.all(best <= control + 1e-15)
+print("ok")
+"""
+
+
+@pytest.mark.slow
+def test_the_statistic_split_over_two_cpu_devices_returns(shared_dir):
+    """The statistic's program split over two CPU devices (`jax.shard_map`, as the command
+    line runs it) on syn_gap's fit with its gap: with its damping trials vmapped, its first
+    call never returned (jax 0.10.2). Three calls in a fresh process, within a time limit."""
+    import subprocess
+    import sys
+
+    path = str(shared_dir / "data" / "synthetic" / "syn_gap.csv")
+    run = subprocess.run(
+        [sys.executable, "-c", _TWO_DEVICE_STATISTIC.format(path=path)],
+        capture_output=True,
+        text=True,
+        timeout=400,
+    )
+    assert run.returncode == 0 and run.stdout.strip().endswith("ok"), run.stderr[-2000:]
