@@ -98,7 +98,8 @@ def diagnose(
             )
         # a larger search for the effect to add (the most significant, if any is), where an
         # extension starts; an effect that is not needed keeps its quick refit
-        leader = cal.candidates.index(cal.ranking()[0])
+        ranking = cal.ranking()
+        leader = cal.candidates.index(ranking[0])
         if plan.confirm_iterations is not None and cal.p_values[leader] <= criteria.alpha:
             control, fitted_each = confirmed(leader)
         for k, (cand, fitted) in enumerate(zip(cands, fitted_each)):
@@ -122,7 +123,6 @@ def diagnose(
                     f"{cand.name}: NMSE {control_k:.4g} -> {cal.nmse[k]:.4g}, "
                     f"p = {cal.p_values[k]:.2g} (F test {cal.f_p_values[k]:.2g})"
                 )
-        ranking = cal.ranking()
         needed = [
             n for n in ranking if refits[n].p_value <= criteria.alpha and refits[n].identified
         ]
