@@ -35,7 +35,7 @@ class Constraint(NamedTuple):
 
     def describe(self) -> str:
         if self.high < math.inf:
-            return f"lie in [{self.low}, {self.high})"
+            return f"lie in {'[' if self.closed_low else '('}{self.low:g}, {self.high:g})"
         if self.low == -math.inf:
             return "be finite"
         return f"be {'>=' if self.closed_low else '>'} {self.low:g}"

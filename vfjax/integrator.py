@@ -67,12 +67,15 @@ class DenseOutput(eqx.Module):
         x: displacement at the nodes (cm).
         v: velocity at the nodes (cm/s).
         phase: phase code of the segment that starts at each node (see `vfjax.phases`).
+        z: the stateful terms' internal states at the nodes, one pytree per term (leaves with
+            a leading node axis; `VocalFoldModel.initial_state`'s layout); ``()`` without any.
     """
 
     t: Float[Array, " nodes"]
     x: Float[Array, " nodes"]
     v: Float[Array, " nodes"]
     phase: Int[Array, " nodes"]
+    z: tuple = ()
 
     def _locate(self, times):
         n = self.t.shape[-1]
@@ -98,6 +101,18 @@ class DenseOutput(eqx.Module):
             theta, self.x[j], self.v[j] * span, self.x[j + 1], self.v[j + 1] * span
         )
         return jnp.where(ok, slope / jnp.where(ok, span, 1.0), self.v[j + 1])
+
+    def internal_state(self, times: ArrayLike) -> tuple:
+        """The stateful terms' internal states at ``times`` (s), interpolated linearly between
+        the nodes (one RK4 step or less apart); clamped to the first and last node."""
+        times = jnp.clip(jnp.asarray(times, dtype=float), self.t[0], self.t[-1])
+        j, theta, _ = self._locate(times)
+
+        def read(z):
+            w = jnp.reshape(theta, theta.shape + (1,) * (z.ndim - 1))
+            return (1.0 - w) * z[j] + w * z[j + 1]
+
+        return jax.tree.map(read, self.z)
 
     def phase_at(self, times: ArrayLike) -> Array:
         """Phase code at ``times`` (s): that of the segment containing each time."""
@@ -158,6 +173,7 @@ class _Carry(NamedTuple):
     step: Array  # index of the last grid point reached
     flags: Array  # regime flags, packed (`_pack`)
     events: Array  # regime switches so far (located events and hold releases)
+    z: tuple  # internal states of the stateful terms (`VocalFoldModel.initial_state`)
 
     def flag(self, bit):
         return (self.flags & bit) != 0
@@ -176,7 +192,14 @@ def _phase_code(flow, inner, closing, hold):
     return jnp.where(hold | ~flow, phases.CLOSED, code)
 
 
-def _rk4(model, t, x, v, dt, mode, xc, origin, one):
+def _axpy(y, scale, dy):
+    """The internal states ``y + scale * dy`` (pytrees of the same structure)."""
+    return jax.tree.map(lambda a, b: a + scale * b, y, dy)
+
+
+def _rk4(model, t, x, v, z, dt, mode, xc, origin, one):
+    """One RK4 step of (x, v, z) with the mode flags frozen. Returns the new state and the
+    derivatives at both ends of the step (a and dz/dt), for the step's Hermite cubics."""
     # a time-dependent pressure is computed once per stage time (see `_computed_once`:
     # otherwise its sine is re-derived in every consumer, 2.5x slower)
     timed = model.varies_pressure
@@ -184,20 +207,29 @@ def _rk4(model, t, x, v, dt, mode, xc, origin, one):
     def pressure(t):
         return _computed_once(model.pressure(t - origin), one) if timed else None
 
-    def acc(t, x, v, p):
-        return model.acceleration(t - origin, x, v, *mode, xc, p)
+    def rates(t, x, v, z, p):
+        return model.rates(t - origin, x, v, z, *mode, xc, p)
 
     p_start, p_mid, p_end = pressure(t), pressure(t + 0.5 * dt), pressure(t + dt)
-    a1 = acc(t, x, v, p_start)
-    x2, v2 = x + 0.5 * dt * v, v + 0.5 * dt * a1
-    a2 = acc(t + 0.5 * dt, x2, v2, p_mid)
-    x3, v3 = x + 0.5 * dt * v2, v + 0.5 * dt * a2
-    a3 = acc(t + 0.5 * dt, x3, v3, p_mid)
-    x4, v4 = x + dt * v3, v + dt * a3
-    a4 = acc(t + dt, x4, v4, p_end)
+    a1, dz1 = rates(t, x, v, z, p_start)
+    x2, v2, z2 = x + 0.5 * dt * v, v + 0.5 * dt * a1, _axpy(z, 0.5 * dt, dz1)
+    a2, dz2 = rates(t + 0.5 * dt, x2, v2, z2, p_mid)
+    x3, v3, z3 = x + 0.5 * dt * v2, v + 0.5 * dt * a2, _axpy(z, 0.5 * dt, dz2)
+    a3, dz3 = rates(t + 0.5 * dt, x3, v3, z3, p_mid)
+    x4, v4, z4 = x + dt * v3, v + dt * a3, _axpy(z, dt, dz3)
+    a4, dz4 = rates(t + dt, x4, v4, z4, p_end)
     x_new = x + dt / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4)
     v_new = v + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-    return x_new, v_new, a1, acc(t + dt, x_new, v_new, p_end)
+    z_new = jax.tree.map(
+        lambda y, k1, k2, k3, k4: y + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4),
+        z,
+        dz1,
+        dz2,
+        dz3,
+        dz4,
+    )
+    a_end, dz_end = rates(t + dt, x_new, v_new, z_new, p_end)
+    return x_new, v_new, z_new, a1, dz1, a_end, dz_end
 
 
 def _computed_once(value, one):
@@ -276,9 +308,13 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
 
         # Free motion: trial RK4 step with the regime flags frozen.
         mode = (c_flow, c_inner, c_closing)
-        x1, v1, a0, a1 = _rk4(model, c.t, c.x, c.v, dt, mode, xc, origin, one)
+        x1, v1, z1, a0, dz0, a1, dz1 = _rk4(model, c.t, c.x, c.v, c.z, dt, mode, xc, origin, one)
         event, theta, xe, ve, is_flow, is_inner, is_dir = _locate_event(
             c.x, c.v, *mode, x1, v1, a0, a1, dt, x0, xc, one
+        )
+        # the internal states at the event, on their own Hermite cubics over the step
+        ze = jax.tree.map(
+            lambda y0, r0, y1, r1: hermite(theta, y0, r0 * dt, y1, r1 * dt), c.z, dz0, z1, dz1
         )
         flow, inner, closing = c_flow ^ is_flow, c_inner ^ is_inner, c_closing ^ is_dir
         # A velocity reversal can fall beyond a surface the same step grazed (in and out of
@@ -302,6 +338,7 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
                 flow & ~starts_hold, inner | starts_hold, closing & ~starts_hold, starts_hold
             ),
             events=c.events + event.astype(c.events.dtype),
+            z=jax.tree.map(lambda a, b: jnp.where(event, a, b), ze, z1),
         )
 
         # Closure hold: the state rests until the hold runs out, so one iteration takes it to
@@ -309,16 +346,18 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
         # the release, so the next free step ends on the grid as if the hold had been stepped.
         t_release = c.t + c.hold_left
         release = t_release <= t_end
+        t_held = jnp.where(release, t_release, t_end)
         k = jnp.ceil(t_release / h).astype(c.step.dtype) - 1
         k = jnp.clip(jnp.where((k + 1).astype(float) * h < t_release, k + 1, k), c.step, n_steps)
         held = _Carry(
-            t=jnp.where(release, t_release, t_end),
+            t=t_held,
             x=c.x,
             v=jnp.zeros_like(c.v),
             hold_left=jnp.where(release, 0.0, t_release - t_end),
             step=jnp.where(release, k, n_steps),
             flags=_pack(c.x > x0, c.x <= xc, False, ~release),
             events=c.events + release.astype(c.events.dtype),
+            z=model.held_state(c.z, jnp.maximum(t_held - c.t, 0.0)),
         )
 
         new = jax.tree.map(lambda a, b: jnp.where(c_hold, a, b), held, free)
@@ -331,11 +370,13 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
             | (jnp.abs(new.x) > _X_LIMIT)
             | (jnp.abs(new.v) > _V_LIMIT)
         )
+        for leaf in jax.tree.leaves(new.z):
+            bad = bad | ~jnp.all(jnp.isfinite(leaf))
         keep = ~active | bad
         out = jax.tree.map(lambda old, nw: jnp.where(keep, old, nw), c, new)
         out = out._replace(flags=out.flags | jnp.where(active & bad, _DIVERGED, 0))
         code = _phase_code(c_flow, c_inner, c_closing, c_hold)
-        return out, (out.t, out.x, out.v, code)
+        return out, (out.t, out.x, out.v, code, out.z)
 
     return body
 
@@ -359,17 +400,15 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin):
     `_integrate` differentiates `_integrate_scan` instead.
     """
     body = _iteration(model, h, n_steps, origin)
-    rows = (
-        jnp.zeros(n_iter, start.t.dtype),
-        jnp.zeros(n_iter, start.x.dtype),
-        jnp.zeros(n_iter, start.v.dtype),
-        jnp.zeros(n_iter, start.phase_code().dtype),
-    )
+    final = (start.t, start.x, start.v, start.phase_code(), start.z)
+    rows = jax.tree.map(lambda y: jnp.zeros((n_iter,) + jnp.shape(y), jnp.result_type(y)), final)
 
     def trip(state):
         i, c, rows = state
         c, chunk = jax.lax.scan(body, c, None, length=_CHUNK, unroll=_UNROLL)
-        rows = tuple(jax.lax.dynamic_update_slice_in_dim(a, r, i, 0) for a, r in zip(rows, chunk))
+        rows = jax.tree.map(
+            lambda a, r: jax.lax.dynamic_update_slice_in_dim(a, r, i, 0), rows, chunk
+        )
         return i + _CHUNK, c, rows
 
     def running(state):
@@ -378,23 +417,28 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin):
 
     i, end, rows = jax.lax.while_loop(running, trip, (0, start, rows))
     done = jnp.arange(n_iter) >= i
-    final = (end.t, end.x, end.v, end.phase_code())
-    return end, _batch_first(tuple(jnp.where(done, f, r) for f, r in zip(final, rows)))
+    final = (end.t, end.x, end.v, end.phase_code(), end.z)
+
+    def fill(f, r):
+        return jnp.where(jnp.reshape(done, done.shape + (1,) * jnp.ndim(f)), f, r)
+
+    return end, _batch_first(jax.tree.map(fill, final, rows))
 
 
 def _batch_first(rows):
-    """``rows`` unchanged, with any `jax.vmap` batch axis placed first.
+    """``rows`` (a pytree) unchanged, with any `jax.vmap` batch axis placed first.
 
     `_integrate`'s two implementations must return their outputs with the same batch axes:
     JAX (0.10) batches a `custom_jvp` function and its derivative rule separately and keeps
     the primal's axes for both, while a scan stacks its rows behind the batch axis and a while
     loop's carry puts it in front. A reshape's batching rule moves the batch axis first."""
-    return tuple(jax.lax.reshape(jax.lax.reshape(r, (r.shape[0], 1)), r.shape) for r in rows)
+    return jax.tree.map(lambda r: jax.lax.reshape(jax.lax.reshape(r, (r.size, 1)), r.shape), rows)
 
 
 @eqx.filter_custom_jvp
 def _integrate(model, start, *, h, n_steps, n_iter, origin):
-    """The integration: end state and per-iteration rows (t, x, v, phase code).
+    """The integration: end state and per-iteration rows (t, x, v, phase code, internal
+    states).
 
     Evaluated by the early-stopping `_integrate_loop`; differentiated (forward, and so reverse)
     through `_integrate_scan`, which computes the same values."""
@@ -585,6 +629,7 @@ def simulate(
     if max_events is not None:
         max_events = _as_count("max_events", max_events, 0)
     h = 1.0 / (substeps * fps)
+    model.check_step(h)
     horizon = t_start + max_time_shift + (n_frames - 1) / fps
     n_steps = max(1, math.ceil(horizon / h - 1e-9))
     if max_events is None:
@@ -671,6 +716,7 @@ def _start(model, x_init, v_init) -> _Carry:
         step=jnp.zeros((), jnp.int32),
         flags=_pack(x_init > x0, x_init <= xc, v_init < 0, False),
         events=jnp.zeros((), jnp.int32),
+        z=jax.tree.map(lambda y: jnp.asarray(y, float), model.initial_state()),
     )
 
 
@@ -678,15 +724,16 @@ def _sampled(
     model, begin, end, rows, times, n_steps, valid_model, shift_ok, counted=None, warmed=True
 ) -> Simulation:
     """The `Simulation` of an integration from the carry ``begin`` to ``end`` with dense
-    ``rows`` (t, x, v, phase code), read at the frame ``times``. ``counted``: which frames
-    count (the others are padding, of zero area); ``warmed``: whether the motion before the
-    rows ran to its end."""
-    ts, xs, vs, codes = rows
+    ``rows`` (t, x, v, phase code, internal states), read at the frame ``times``.
+    ``counted``: which frames count (the others are padding, of zero area); ``warmed``:
+    whether the motion before the rows ran to its end."""
+    ts, xs, vs, codes, zs = rows
     dense = DenseOutput(
         t=jnp.concatenate([begin.t[None], ts]),
         x=jnp.concatenate([begin.x[None], xs]),
         v=jnp.concatenate([begin.v[None], vs]),
         phase=jnp.concatenate([codes, codes[-1:]]),
+        z=jax.tree.map(lambda z0, z: jnp.concatenate([z0[None], z]), begin.z, zs),
     )
     x = dense.displacement(times)
     valid = times <= end.t + 1e-12
@@ -853,6 +900,7 @@ def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift=0.0)
     whatever the frame rate, frame count within the bucket and warm-up; forward-mode
     derivatives only (`simulate_frames`)."""
     n_out, n_rows = window_size(sampling)
+    model.check_step(sampling.step)
     sim = _frames(model, sampled_grid(sampling), jnp.asarray(float(time_shift)), n_out, n_rows)
     n = sampling.n_frames
     per_frame = ("time", "area", "glottal_area", "displacement", "velocity", "phase")

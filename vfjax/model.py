@@ -15,6 +15,7 @@ from .terms.base import (
     AbstractHoldVariability,
     AbstractObservation,
     AbstractPressure,
+    AbstractStatefulForce,
     AbstractTerm,
     Context,
 )
@@ -29,6 +30,11 @@ _MODEL_PARAMETERS: dict[str, tuple[tuple[str, ...], str]] = {
     "d": (("subject", "thickness"), "cm"),
     "A_g0": (("subject", "rest_area"), "cm²"),
 }
+
+
+#: The largest (fastest decay rate x RK4 step) a stateful term's states may see; RK4 is stable
+#: up to 2.78.
+_STIFF_LIMIT = 2.5
 
 
 class VocalFoldModel(eqx.Module):
@@ -241,15 +247,57 @@ class VocalFoldModel(eqx.Module):
             thickness=s.thickness,
         )
 
-    def acceleration(self, t, x, v, flow, inner, closing, xc, pressure=None) -> Array:
+    def acceleration(self, t, x, v, flow, inner, closing, xc, pressure=None, state=()) -> Array:
         """dv/dt (cm/s²) = sum of the force terms / M, in the given (frozen) mode
-        (``pressure``: the subglottal pressure at ``t`` if already computed)."""
+        (``pressure``: the subglottal pressure at ``t`` if already computed; ``state``: the
+        internal states, as `initial_state` orders them)."""
+        return self.rates(t, x, v, state, flow, inner, closing, xc, pressure)[0]
+
+    def rates(self, t, x, v, state, flow, inner, closing, xc, pressure=None):
+        """(dv/dt in cm/s², d state/dt) at one instant in the given (frozen) mode: the sum of
+        the force terms over M, and each stateful term's `state_rate`.
+
+        Arguments:
+            t: time (s); x: displacement (cm); v: velocity (cm/s).
+            state: the internal states of the stateful terms (`initial_state`'s layout).
+            flow, inner, closing: the frozen mode flags (`vfjax.terms.Context`).
+            xc: sub-critical displacement x_c (cm).
+            pressure: the subglottal pressure at ``t`` (dyne/cm²) if already computed.
+        """
         ctx = self.context(t, x, v, flow, inner, closing, xc, pressure)
         total = jnp.zeros_like(jnp.asarray(x, dtype=float))
+        states = iter(state)
+        rates = []
         for term in self.terms:
             if isinstance(term, AbstractForce):
                 total = total + term.force(ctx)
-        return total / self.subject.mass
+            elif isinstance(term, AbstractStatefulForce):
+                own = next(states)
+                total = total + term.force(ctx, own)
+                rates.append(term.state_rate(ctx, own))
+        return total / self.subject.mass, tuple(rates)
+
+    def initial_state(self) -> tuple:
+        """The internal states at time 0: one pytree per `AbstractStatefulForce` term, in the
+        order of ``terms``; an empty tuple for a model without any."""
+        return tuple(t.initial_state() for t in self.terms if isinstance(t, AbstractStatefulForce))
+
+    def check_step(self, step: float) -> None:
+        """Raise ValueError if an RK4 step of ``step`` seconds would integrate a stateful
+        term's stiff states unstably (``max_rate * step`` beyond 2.5)."""
+        for term in self.terms:
+            rate = getattr(term, "max_rate", 0.0) if isinstance(term, AbstractStatefulForce) else 0
+            if rate * step > _STIFF_LIMIT:
+                raise ValueError(
+                    f"{type(term).__name__} has states relaxing at up to {rate:.3g} 1/s: an RK4 "
+                    f"step of {step:.3g} s integrates them unstably (it must stay below "
+                    f"{_STIFF_LIMIT / rate:.3g} s); raise substeps (RK4 steps per frame)"
+                )
+
+    def held_state(self, state: tuple, duration: ArrayLike) -> tuple:
+        """The internal states after a closure hold of ``duration`` (s)."""
+        stateful = [t for t in self.terms if isinstance(t, AbstractStatefulForce)]
+        return tuple(t.held_state(z, duration) for t, z in zip(stateful, state, strict=True))
 
     def observe(self, t: Array, x: Array, displacement_at: Callable[[Array], Array]) -> Array:
         """Observed area in pixels at frame times ``t`` (s) with displacement ``x`` (cm)."""

@@ -16,7 +16,7 @@ import numpy as np
 from ._validate import check_schema
 from .model import VocalFoldModel
 from .subject import Subject
-from .terms import CATALOGUE, ClosureJitter
+from .terms import CATALOGUE, ClosureJitter, PowerLawTissue
 from .terms.base import AbstractTerm
 from .terms.paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
 
@@ -24,6 +24,7 @@ from .terms.paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, T
 BUILTIN_TERMS: tuple[type[AbstractTerm], ...] = (
     *(Elastic, TanhDamping, BernoulliForce, FlowSeparation, ClosureHold),
     *CATALOGUE,
+    PowerLawTissue,
     ClosureJitter,
 )
 #: Saved fit results larger than this (bytes) are refused unread.

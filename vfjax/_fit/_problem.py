@@ -291,6 +291,7 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
     (lower, upper) in the search coordinates. ``size``: the program's static sizes
     (`program_size`; default: those of ``sampling``)."""
     params = tuple(params)
+    model.check_step(sampling.step)
     units = model.parameter_units()
     unknown = [n for n in params if n not in units]
     if unknown:

@@ -4,6 +4,7 @@
 - `paper`: the five terms of the seed paper's model.
 - `effects`: candidate effects the paper's model lacks (MODEL_SPEC.md's catalogue).
 - `variability`: cycle-to-cycle variability (closure, stiffness and amplitude jitter).
+- `tissue`: power-law (fractional) viscoelastic tissue, a term with internal states.
 """
 
 from .base import (
@@ -11,11 +12,13 @@ from .base import (
     AbstractHoldVariability,
     AbstractObservation,
     AbstractPressure,
+    AbstractStatefulForce,
     AbstractTerm,
     Context,
 )
 from .effects import CATALOGUE, CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
 from .paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
+from .tissue import PowerLawTissue, grunwald_letnikov
 from .variability import AmplitudeJitter, ClosureJitter, StiffnessJitter, TimingJitter
 
 __all__ = [
@@ -23,6 +26,7 @@ __all__ = [
     "AbstractHoldVariability",
     "AbstractObservation",
     "AbstractPressure",
+    "AbstractStatefulForce",
     "AbstractTerm",
     "AmplitudeJitter",
     "BernoulliForce",
@@ -30,6 +34,7 @@ __all__ = [
     "CubicStiffness",
     "GlottalGap",
     "MucosalDelay",
+    "PowerLawTissue",
     "PressureModulation",
     "ClosureHold",
     "ClosureJitter",
@@ -39,4 +44,5 @@ __all__ = [
     "StiffnessJitter",
     "TimingJitter",
     "TanhDamping",
+    "grunwald_letnikov",
 ]

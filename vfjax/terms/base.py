@@ -1,9 +1,11 @@
 """The kinds of model term and the context they are evaluated in.
 
 A term is an `equinox.Module` whose array fields are its parameters (pytree leaves). It is one
-of four kinds, told apart by which abstract class it derives from:
+of these kinds, told apart by which abstract class it derives from:
 
 - `AbstractForce`: adds a force (dyne) on one fold to the equation of motion.
+- `AbstractStatefulForce`: a force with internal states of its own (relaxation modes, a
+  flow), integrated with the folds' motion by the same event-located RK4.
 - `AbstractPressure`: transforms the subglottal pressure as a function of time.
 - `AbstractObservation`: transforms the glottal area that the camera sees.
 - `AbstractHoldVariability`: scales the length of each closure hold (cycle-to-cycle
@@ -15,12 +17,13 @@ Every term class lists the user-facing names of its parameters in ``parameters``
 ``model.set(K=...)``). Names are unique within a model.
 """
 
+import abc
 from collections.abc import Callable
 from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool
+from jaxtyping import Array, ArrayLike, Bool, PyTree
 
 from .._validate import Constraint, check_constraints, constraints_hold
 
@@ -128,6 +131,43 @@ class AbstractForce(AbstractTerm):
     def force(self, ctx: Context) -> Array:
         """The force (dyne) at the instant described by ``ctx``."""
         raise NotImplementedError
+
+
+class AbstractStatefulForce(AbstractTerm):
+    """A force on one fold (dyne) that depends on internal states of the term's own.
+
+    The states (a pytree of float arrays, e.g. the relaxation modes of a viscoelastic
+    tissue) obey ``d state / dt = state_rate(ctx, state)`` and are integrated with the folds'
+    displacement and velocity by the same RK4, with the same located events (where a regime
+    switches, the states are read off the step's cubic Hermite interpolant, so their
+    derivatives carry the event time's). During a closure hold the folds rest (x fixed,
+    v = 0) and the states become `held_state` after the hold's duration.
+
+    A model without such a term carries no internal state: its programs are those of a model
+    whose state is the displacement and velocity alone.
+    """
+
+    #: The fastest decay rate of the states (1/s), if they are stiff: RK4 is stable for
+    #: ``max_rate * h < 2.78``, so `vfjax.simulate` and the fits refuse a step h beyond it.
+    max_rate: ClassVar[float] = 0.0
+
+    @abc.abstractmethod
+    def initial_state(self) -> PyTree[Array]:
+        """The states at time 0, with the folds at rest (float arrays of fixed shapes)."""
+
+    @abc.abstractmethod
+    def state_rate(self, ctx: Context, state: PyTree[Array]) -> PyTree[Array]:
+        """d state / dt at the instant ``ctx`` (the states' units per second)."""
+
+    @abc.abstractmethod
+    def force(self, ctx: Context, state: PyTree[Array]) -> Array:
+        """The force (dyne) at the instant ``ctx`` with internal ``state``."""
+
+    def held_state(self, state: PyTree[Array], duration: ArrayLike) -> PyTree[Array]:
+        """The states after ``duration`` (s) of closure hold (x fixed, v = 0); by default
+        unchanged. A term whose states evolve while the folds rest overrides it with the
+        exact solution of its ``state_rate`` at v = 0."""
+        return state
 
 
 class AbstractPressure(AbstractTerm):
