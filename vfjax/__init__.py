@@ -10,6 +10,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 from . import (  # noqa: E402
+    asymmetry,
     compare,
     datasets,
     descriptors,
@@ -91,6 +92,7 @@ from .terms import (  # noqa: E402
 __version__ = "0.1.0"
 
 __all__ = [
+    "asymmetry",
     "compare",
     "descriptors",
     "datasets",

@@ -10,6 +10,7 @@ import pathlib
 import numpy as np
 
 from ._diagnosis import Diagnosis, Investigation, Round
+from .asymmetry import asymmetry_indices, fold_areas
 from .compare import plot_comparison
 from .io import save_figure, write_text
 from .recording import Recording
@@ -193,6 +194,25 @@ def _model_words(result):
     return "the paper's model" + (" + " + " + ".join(extra) if extra else "")
 
 
+def _asymmetry_lines(recording: Recording) -> list[str]:
+    """The recording's left-right asymmetry indices, where it has edges or masks."""
+    if recording.edges is None and recording.masks is None:
+        return []
+    try:
+        left, right = fold_areas(recording)
+    except ValueError as err:
+        return [f"No left-right split: {err}.", ""]
+    ai = asymmetry_indices(left, right, recording.fps)
+    if ai.n_cycles == 0:
+        return ["Left-right asymmetry: no complete cycle to measure it on.", ""]
+    return [
+        f"Left-right asymmetry (areas split by the glottal midline, {ai.n_cycles} cycles): "
+        f"amplitude symmetry index ASI {ai.asi:.3f}, phase asymmetry index PAI {ai.pai:.3f} "
+        "(symmetric folds: 1 and 0; the fitted model's folds are symmetric).",
+        "",
+    ]
+
+
 def write_report(
     study: Investigation | Diagnosis,
     recording: Recording,
@@ -224,6 +244,7 @@ def write_report(
         f"({recording.n_frames / recording.fps * 1e3:.1f} ms), peak area {_fmt(n_peak)} "
         f"{recording.unit}.",
         "",
+        *_asymmetry_lines(recording),
         "| round | model | NMSE | added next |",
         "|---|---|---|---|",
     ]

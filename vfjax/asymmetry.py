@@ -1,0 +1,178 @@
+"""Left and right folds: the glottal midline, per-fold glottal areas and asymmetry indices.
+
+The glottis is taken as lying along the image's rows (its posterior and anterior ends at the
+top and bottom of the glottal region), as in the contour files of ``shared/data/real`` and in
+laryngeal high-speed video. The **glottal midline** is the straight line through the glottis's
+two ends over the whole recording: at each end, the median centre column of the glottis over
+the frames and rows within `END_BAND` of the glottal length from that end. Each frame's area
+is split by the midline into the image-left fold's part (left of the line) and the
+image-right fold's (the rest); the two add up to the frame's area exactly.
+
+The indices are those of OpenHSV (Kist et al. 2021), computed per glottal cycle of the total
+area (cycles as in `vfjax.descriptors`, from one opening to the next) and averaged:
+
+| index | per cycle | symmetric folds |
+|---|---|---|
+| amplitude symmetry index, ASI | min(max A_l, max A_r) / max(max A_l, max A_r) | 1 |
+| phase asymmetry index, PAI | abs(frame of max A_l - frame of max A_r) / frames in the cycle | 0 |
+
+The same functions serve measured and simulated per-fold areas.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from .descriptors import detect_cycles
+
+#: Share of the glottal length, at each end, whose centre columns locate that end.
+END_BAND = 0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class Midline:
+    """The glottal midline: the column ``column(row)`` of the line through the glottis's ends.
+
+    Attributes:
+        top: (row, column) of the glottis's end at the top of the image (pixels).
+        bottom: (row, column) of its end at the bottom of the image (pixels).
+    """
+
+    top: tuple[float, float]
+    bottom: tuple[float, float]
+
+    def column(self, row) -> np.ndarray:
+        """The midline's column (pixels, fractional) at image row(s) ``row``."""
+        (r0, c0), (r1, c1) = self.top, self.bottom
+        slope = (c1 - c0) / (r1 - r0) if r1 != r0 else 0.0
+        return c0 + (np.asarray(row, dtype=float) - r0) * slope
+
+
+def _rows_and_centres(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frame, row, centre column) of every row the glottis reaches in ``edges``."""
+    left, right = edges[:, 0], edges[:, 1]
+    reached = (left > 0) & (right > 0) & (right > left)
+    frames, rows = np.nonzero(reached)
+    centres = 0.5 * (left[frames, rows] + right[frames, rows])
+    return frames, rows, centres
+
+
+def _edges_from_masks(masks: np.ndarray) -> np.ndarray:
+    """Per-row outer edges (left column, right column + 1) of binary masks; 0 where a row
+    has no glottis pixel (the contour files' convention)."""
+    masks = np.asarray(masks, dtype=bool)
+    n, h, w = masks.shape
+    any_px = masks.any(axis=2)
+    first = np.argmax(masks, axis=2).astype(float)
+    last = (w - np.argmax(masks[:, :, ::-1], axis=2)).astype(float)
+    edges = np.zeros((n, 2, h))
+    # a glottis touching column 0 keeps a non-zero edge: columns count from 1 here
+    edges[:, 0] = np.where(any_px, first + 1.0, 0.0)
+    edges[:, 1] = np.where(any_px, last + 1.0, 0.0)
+    return edges
+
+
+def glottal_midline(edges=None, masks=None) -> Midline:
+    """The glottal midline of a recording, from its edges or its masks.
+
+    Arguments:
+        edges: (frames, 2, rows) left and right edge columns per image row (pixels; 0 where
+            the glottis does not reach the row), as `vfjax.Recording.edges`.
+        masks: (frames, height, width) binary glottis masks, as `vfjax.Recording.masks`
+            (used when ``edges`` is None).
+
+    Raises:
+        ValueError: without edges or masks, or when the glottis never spans two rows.
+    """
+    if edges is None:
+        if masks is None:
+            raise ValueError("a glottal midline needs edges or masks")
+        edges = _edges_from_masks(masks)
+    edges = np.asarray(edges, dtype=float)
+    if edges.ndim != 3 or edges.shape[1] != 2:
+        raise ValueError(f"edges must have shape (frames, 2, rows), got {edges.shape}")
+    _, rows, centres = _rows_and_centres(edges)
+    if rows.size == 0 or rows.min() == rows.max():
+        raise ValueError(
+            "the glottis never spans two image rows: no midline (and no left/right split)"
+        )
+    r0, r1 = float(rows.min()), float(rows.max())
+    band = max(END_BAND * (r1 - r0), 1.0)
+    top, bottom = rows <= r0 + band, rows >= r1 - band
+    return Midline(
+        top=(float(np.median(rows[top])), float(np.median(centres[top]))),
+        bottom=(float(np.median(rows[bottom])), float(np.median(centres[bottom]))),
+    )
+
+
+def fold_areas(recording, midline: Midline | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The image-left and image-right folds' glottal areas per frame (pixels), split by the
+    glottal midline; they add up to the recording's area.
+
+    Arguments:
+        recording: a `vfjax.Recording` with ``edges`` (contour files) or ``masks`` (video).
+        midline: the midline to split by; default `glottal_midline` of the recording.
+
+    Raises:
+        ValueError: for a recording with neither edges nor masks (a bare GAW has no folds).
+    """
+    edges, masks = recording.edges, recording.masks
+    if edges is None and masks is None:
+        raise ValueError(
+            f"{recording.name}: per-fold areas need the glottis's edges (a contour file) or "
+            "masks (a segmented video); this recording holds its total area only"
+        )
+    if midline is None:
+        midline = glottal_midline(edges=edges, masks=masks)
+    if edges is not None:
+        edges = np.asarray(edges, dtype=float)
+        left, right = edges[:, 0], edges[:, 1]
+        width = np.where((left > 0) & (right > 0), np.maximum(right - left, 0.0), 0.0)
+        mid = midline.column(np.arange(edges.shape[2]))
+        left_part = np.clip(mid - left, 0.0, width)
+        left_area = left_part.sum(axis=1)
+        return left_area, width.sum(axis=1) - left_area
+    masks = np.asarray(masks, dtype=bool)
+    # pixel j of a row covers columns [j + 1, j + 2) in the edges' 1-based columns
+    mid = midline.column(np.arange(masks.shape[1]))[:, None]
+    share = np.clip(mid - (np.arange(masks.shape[2])[None, :] + 1.0), 0.0, 1.0)
+    left_area = (masks * share[None]).sum(axis=(1, 2))
+    return left_area, masks.sum(axis=(1, 2)) - left_area
+
+
+@dataclasses.dataclass(frozen=True)
+class AsymmetryIndices:
+    """Left-right asymmetry of a recording (OpenHSV's definitions; see the module).
+
+    Attributes:
+        asi: amplitude symmetry index (1 symmetric, 0 one fold still), mean over cycles.
+        pai: phase asymmetry index (0 in phase; share of the cycle between the folds'
+            maxima), mean over cycles.
+        n_cycles: complete cycles averaged over.
+    """
+
+    asi: float
+    pai: float
+    n_cycles: int
+
+
+def asymmetry_indices(left, right, fps: float, level: float = 0.05) -> AsymmetryIndices:
+    """ASI and PAI of per-fold areas ``left`` and ``right`` (same unit, one value per frame at
+    ``fps`` Hz), per cycle of their sum (`vfjax.descriptors.detect_cycles` at ``level``);
+    NaN without a complete cycle."""
+    left, right = np.asarray(left, dtype=float), np.asarray(right, dtype=float)
+    if left.shape != right.shape or left.ndim != 1:
+        raise ValueError(
+            f"left and right must be 1-D areas of equal length, got {left.shape}, {right.shape}"
+        )
+    cycles = detect_cycles(left + right, fps, level)
+    asi, pai = [], []
+    for c in cycles:
+        i0, i1 = int(np.floor(c.opening * fps)), int(np.ceil(c.end * fps))
+        seg_l, seg_r = left[i0 : i1 + 1], right[i0 : i1 + 1]
+        hi = max(seg_l.max(), seg_r.max())
+        asi.append(min(seg_l.max(), seg_r.max()) / hi if hi > 0 else np.nan)
+        pai.append(abs(int(np.argmax(seg_l)) - int(np.argmax(seg_r))) / seg_l.size)
+    if not cycles:
+        return AsymmetryIndices(float("nan"), float("nan"), 0)
+    return AsymmetryIndices(float(np.nanmean(asi)), float(np.mean(pai)), len(cycles))
