@@ -79,7 +79,7 @@ class PowerLawTissue(AbstractStatefulForce):
     off_values: ClassVar = {"eta_pl": 0.0}
     one_sided: ClassVar = True
     score_grid: ClassVar = tuple({"alpha_pl": a} for a in (0.25, 0.5, 0.75))
-    ranges: ClassVar = {"eta_pl": (0.0, 400.0, 40.0)}
+    ranges: ClassVar = {"eta_pl": (0.0, 400.0, 40.0), "alpha_pl": (0.05, 0.95, 0.2)}
 
     #: The fastest relaxation rate (1/s): RK4 steps must satisfy max_rate * h < 2.78.
     max_rate: ClassVar[float] = float(math.exp(_grid()[0][-1]))
