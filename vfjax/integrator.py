@@ -14,9 +14,12 @@ comes from a Newton step on live values, so it carries its derivative (implicit 
 theorem), and so does everything after it. The closure hold freezes the state for t_c from a
 located start, so one iteration takes it to its release, whose time is differentiable too.
 
-The result is a list of nodes (time, displacement, velocity) with smooth dynamics between
-consecutive nodes. Frames are read off this dense output by cubic Hermite interpolation at the
-camera times, so they too are differentiable in every parameter and in the sampling time.
+The state is the displacement and velocity plus the internal states of any stateful term
+(`vfjax.AbstractStatefulForce`: relaxation modes, ...), stepped by the same RK4 and read off
+their own Hermite cubics at an event. The result is a list of nodes (time, displacement,
+velocity, internal states) with smooth dynamics between consecutive nodes. Frames are read
+off this dense output by cubic Hermite interpolation at the camera times, so they too are
+differentiable in every parameter and in the sampling time.
 
 The iterations run in a loop that stops once every member of a batch has reached the last
 frame (a member that finishes early idles). Its length is bounded by the steps on the grid plus
