@@ -3,8 +3,10 @@
 The glottis is taken as lying along the image's rows (its posterior and anterior ends at the
 top and bottom of the glottal region), as in the contour files of ``shared/data/real`` and in
 laryngeal high-speed video. The **glottal midline** is the straight line through the glottis's
-two ends over the whole recording: at each end, the median centre column of the glottis over
-the frames and rows within `END_BAND` of the glottal length from that end. Each frame's area
+two ends over the whole recording: at each end, the column where the folds meet, from the
+glottis's centre columns over the frames and rows within `END_BAND` of the glottal length from
+that end, extrapolated to zero width (folds that open unequally lean each row's centre toward
+the wider one, in proportion to the opening). Each frame's area
 is split by the midline into the image-left fold's part (left of the line) and the
 image-right fold's (the rest); the two add up to the frame's area exactly.
 
@@ -48,24 +50,53 @@ class Midline:
         return c0 + (np.asarray(row, dtype=float) - r0) * slope
 
 
-def _rows_and_centres(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(frame, row, centre column) of every row the glottis reaches in ``edges``."""
+def _rows_and_centres(edges: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(frame, row, centre column, width) of every row the glottis reaches in ``edges``."""
     left, right = edges[:, 0], edges[:, 1]
     reached = (left > 0) & (right > 0) & (right > left)
     frames, rows = np.nonzero(reached)
     centres = 0.5 * (left[frames, rows] + right[frames, rows])
-    return frames, rows, centres
+    return frames, rows, centres, right[frames, rows] - left[frames, rows]
+
+
+def _end_column(rows: np.ndarray, centres: np.ndarray, widths: np.ndarray) -> float:
+    """The column where the folds meet at one end of the glottis, at the median of ``rows``:
+    the rows' centres near that end, fitted linearly in row (a slanted glottis) and width,
+    at zero width. Folds that open unequally shift each row's centre toward the wider one in
+    proportion to the opening, so the median centre would lean toward it; the fit at zero
+    width does not. The median where the widths hardly vary (or too few rows); kept within
+    the centres seen."""
+    if centres.size < 5 or np.std(widths) < 0.25:
+        return float(np.median(centres))
+    design = np.stack([np.ones_like(widths), widths, rows - np.median(rows)], axis=1)
+    coef, *_ = np.linalg.lstsq(design, centres, rcond=None)
+    return float(np.clip(coef[0], centres.min(), centres.max()))
 
 
 def _edges_from_masks(masks: np.ndarray) -> np.ndarray:
-    """Per-row outer edges (left column, right column + 1) of binary masks; 0 where a row
-    has no glottis pixel (the contour files' convention)."""
-    masks = np.asarray(masks, dtype=bool)
+    """Per-row edges (left column, right column + 1, in 1-based columns: pixel j covers
+    [j + 1, j + 2)) of masks; 0 where a row has no glottis (the contour files' convention).
+
+    Binary masks give each row's outer edges. A coverage (each pixel's share of glottis)
+    gives sub-pixel edges: a row's width is its summed share and its centre the
+    share-weighted centre of its pixels, so that the glottal midline is not rounded to half
+    a pixel; a row whose share sums to less than half a pixel has no glottis.
+    """
+    masks = np.asarray(masks)
     n, h, w = masks.shape
+    edges = np.zeros((n, 2, h))
+    if np.issubdtype(masks.dtype, np.floating):
+        share = np.clip(masks, 0.0, 1.0)
+        width = share.sum(axis=2)
+        centre = (share * (np.arange(w) + 1.5)).sum(axis=2) / np.maximum(width, 1e-12)
+        some = width >= 0.5
+        edges[:, 0] = np.where(some, centre - 0.5 * width, 0.0)
+        edges[:, 1] = np.where(some, centre + 0.5 * width, 0.0)
+        return edges
+    masks = masks.astype(bool)
     any_px = masks.any(axis=2)
     first = np.argmax(masks, axis=2).astype(float)
     last = (w - np.argmax(masks[:, :, ::-1], axis=2)).astype(float)
-    edges = np.zeros((n, 2, h))
     # a glottis touching column 0 keeps a non-zero edge: columns count from 1 here
     edges[:, 0] = np.where(any_px, first + 1.0, 0.0)
     edges[:, 1] = np.where(any_px, last + 1.0, 0.0)
@@ -78,8 +109,8 @@ def glottal_midline(edges=None, masks=None) -> Midline:
     Arguments:
         edges: (frames, 2, rows) left and right edge columns per image row (pixels; 0 where
             the glottis does not reach the row), as `vfjax.Recording.edges`.
-        masks: (frames, height, width) binary glottis masks, as `vfjax.Recording.masks`
-            (used when ``edges`` is None).
+        masks: (frames, height, width) glottis masks, binary or each pixel's share of
+            glottis, as `vfjax.Recording.masks` (used when ``edges`` is None).
 
     Raises:
         ValueError: without edges or masks, or when the glottis never spans two rows.
@@ -91,7 +122,7 @@ def glottal_midline(edges=None, masks=None) -> Midline:
     edges = np.asarray(edges, dtype=float)
     if edges.ndim != 3 or edges.shape[1] != 2:
         raise ValueError(f"edges must have shape (frames, 2, rows), got {edges.shape}")
-    _, rows, centres = _rows_and_centres(edges)
+    _, rows, centres, widths = _rows_and_centres(edges)
     if rows.size == 0 or rows.min() == rows.max():
         raise ValueError(
             "the glottis never spans two image rows: no midline (and no left/right split)"
@@ -100,8 +131,11 @@ def glottal_midline(edges=None, masks=None) -> Midline:
     band = max(END_BAND * (r1 - r0), 1.0)
     top, bottom = rows <= r0 + band, rows >= r1 - band
     return Midline(
-        top=(float(np.median(rows[top])), float(np.median(centres[top]))),
-        bottom=(float(np.median(rows[bottom])), float(np.median(centres[bottom]))),
+        top=(float(np.median(rows[top])), _end_column(rows[top], centres[top], widths[top])),
+        bottom=(
+            float(np.median(rows[bottom])),
+            _end_column(rows[bottom], centres[bottom], widths[bottom]),
+        ),
     )
 
 
@@ -132,7 +166,8 @@ def fold_areas(recording, midline: Midline | None = None) -> tuple[np.ndarray, n
         left_part = np.clip(mid - left, 0.0, width)
         left_area = left_part.sum(axis=1)
         return left_area, width.sum(axis=1) - left_area
-    masks = np.asarray(masks, dtype=bool)
+    # a binary mask counts whole pixels; a segmented video's coverage, each pixel's share
+    masks = np.asarray(masks, dtype=float)
     # pixel j of a row covers columns [j + 1, j + 2) in the edges' 1-based columns
     mid = midline.column(np.arange(masks.shape[1]))[:, None]
     share = np.clip(mid - (np.arange(masks.shape[2])[None, :] + 1.0), 0.0, 1.0)

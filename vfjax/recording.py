@@ -28,7 +28,9 @@ class Recording:
         edges: optional glottal edge traces, shape (frames, 2, rows): the left and right
             edge column of each image row (0 where the glottis does not reach the row), as
             in contour segmentations; kept for asymmetry analysis.
-        masks: optional per-frame binary glottis masks, shape (frames, height, width).
+        masks: optional per-frame glottis masks, shape (frames, height, width): binary, or
+            each pixel's share of glottis in [0, 1] (a segmented video's coverage, whose sum
+            is the area).
     """
 
     area: np.ndarray

@@ -36,20 +36,29 @@ from scipy import ndimage
 
 @dataclasses.dataclass(frozen=True)
 class Segmentation:
-    """Per-frame glottis masks (full frame size) and areas (pixels), with the ROI used.
+    """Per-frame glottis masks and coverage (full frame size) and areas (pixels), with the
+    ROI used.
 
     Attributes:
-        masks: (frames, height, width) bool.
-        area: (frames,) glottal area in pixels.
+        masks: (frames, height, width) bool: the pixels more than half covered by glottis
+            (inside the boundary where the grey level crosses half way between the tissue's
+            and the glottis's local levels).
+        coverage: (frames, height, width) float32: each pixel's share of glottis (0 outside
+            the glottis and its rim; noise leaves shares slightly below 0 or above 1).
+        area: (frames,) glottal area in pixels, the sum of ``coverage`` (sub-pixel).
         roi: (row0, row1, col0, col1) of the region of interest.
-        threshold: the darkness threshold (grey levels).
+        threshold: the darkness threshold of the first, whole-pixel pass (grey levels).
+        levels: the tissue's grey level at each pixel of the ROI (rows, columns) and the
+            glottis's grey level, between which the coverage is measured.
         shifts: (frames, 2) drift correction applied to each frame (rows, columns).
     """
 
     masks: np.ndarray
+    coverage: np.ndarray
     area: np.ndarray
     roi: tuple
     threshold: float
+    levels: tuple
     shifts: np.ndarray
 
 
@@ -66,7 +75,9 @@ def _register(video, reference, max_shift=8):
     f = fft.rfft2(a - a.mean(axis=(1, 2), keepdims=True), workers=-1)
     g = fft.rfft2(b - b.mean(), workers=-1)
     cross = f.conj() * g
-    cross /= np.maximum(np.abs(cross), 1e-12)
+    # partly whitened: full whitening (phase correlation proper) lets the sensor noise of a
+    # dim, smooth clip's empty high frequencies decide the peak
+    cross /= np.sqrt(np.maximum(np.abs(cross), 1e-12))
     corr = fft.irfft2(cross, s=a.shape[1:], workers=-1)
     h, w = a.shape[1:]
     flat = corr.reshape(len(video), -1).argmax(axis=1)
@@ -128,6 +139,200 @@ def _persistent_gap(tissue, open_grey, union, reach=2):
     return np.isin(lab, touching) & (lab > 0)
 
 
+def _components(candidates, core, min_size, frames=None):
+    """Per frame: the candidate pixels with holes filled, in components of at least
+    ``min_size`` pixels that touch the moving region's ``core``."""
+    out = np.zeros(candidates.shape, dtype=bool)
+    for i in range(len(candidates)) if frames is None else frames:
+        m = candidates[i]
+        if not m.any():
+            continue
+        lab, n = ndimage.label(ndimage.binary_fill_holes(m))
+        sizes = np.bincount(lab.ravel())
+        touches = np.bincount(lab.ravel(), weights=core.ravel())
+        keep = (sizes >= min_size) & (touches > 0)
+        keep[0] = False
+        out[i] = keep[lab]
+    return out
+
+
+def _tissue_levels(sub, masks, rim_px):
+    """Each pixel's tissue grey level: its median over the frames in which no glottis comes
+    within ``rim_px`` pixels of it (unbiased by noise, unlike a high percentile; a pixel
+    that the glottis's rim covers in nearly every frame falls back on its 90th percentile),
+    and where each frame is clear of the glottis (frames, rows, columns)."""
+    inplane = np.zeros((3, 3, 3), dtype=bool)
+    inplane[1] = ndimage.generate_binary_structure(2, 1)
+    # (scipy dilates until nothing changes when told 0 iterations)
+    clear = ~(ndimage.binary_dilation(masks, inplane, iterations=rim_px) if rim_px else masks)
+    if not clear.any():
+        return np.percentile(sub, 90.0, axis=0), clear
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: the fallback
+        tissue = np.nanmedian(np.where(clear, sub, np.nan), axis=0)
+    rare = clear.sum(axis=0) < 3
+    if rare.any():
+        tissue[rare] = np.percentile(sub[:, rare], 90.0, axis=0)
+    return tissue, clear
+
+
+def _glottis_level(sub, tissue, masks, n_frames=5):
+    """The glottis's grey level G and the optics' blur sigma (pixels), fitted to the rows of
+    the widest frames.
+
+    Blur mixes a narrow glottis with the tissue beside it, so its darkest pixels need not
+    reach G. Across each row a blurred opening from a to b darkens pixel x (centre x + 1/2)
+    by ``(T(x) - G) (Phi((x + 1/2 - a) / s) - Phi((x + 1/2 - b) / s))``, with T the tissue's
+    level and s the blur (with the pixel's width); G and s are common to the rows, a and b
+    (sub-pixel edges) their own. Fitted by least squares over the middle half of the
+    glottis's rows in the ``n_frames`` widest frames. Returns None where too few rows open.
+    """
+    from scipy import optimize, sparse, special
+
+    widest = np.argsort(masks.sum(axis=(1, 2)))[::-1][:n_frames]
+    rows, cols, darks = [], [], []
+    for i in widest:
+        hit = np.flatnonzero(masks[i].any(axis=1))
+        if hit.size < 4:
+            continue
+        lo, hi = np.percentile(hit, [25, 75])
+        for r in hit[(hit >= lo) & (hit <= hi)]:
+            c = np.flatnonzero(masks[i, r])
+            if c.size < 2:
+                continue
+            c0, c1 = max(c[0] - 6, 0), min(c[-1] + 7, sub.shape[2])
+            x = np.arange(c0, c1)
+            rows.append((float(c[0]), float(c[-1] + 1)))
+            cols.append(x + 0.5)
+            darks.append((tissue[r, c0:c1], sub[i, r, c0:c1]))
+    if len(rows) < 4:
+        return None
+    n = len(rows)
+    sizes = np.array([x.size for x in cols])
+    xs = np.concatenate(cols)
+    which = np.repeat(np.arange(n), sizes)
+    t_level = np.concatenate([d[0] for d in darks])
+    grey = np.concatenate([d[1] for d in darks])
+    deepest = float(np.percentile(grey, 1))
+
+    rows_of = np.arange(xs.size)
+
+    def parts(p):
+        g, s, a, b = p[0], np.exp(p[1]), p[2 : 2 + n][which], p[2 + n :][which]
+        za, zb = (xs - a) / s, (xs - b) / s
+        return g, s, za, zb, special.ndtr(za) - special.ndtr(zb)
+
+    def residual(p):
+        g, _, _, _, share = parts(p)
+        return t_level - (t_level - g) * share - grey
+
+    def jacobian(p):
+        g, s, za, zb, share = parts(p)
+        pa, pb = np.exp(-0.5 * za**2), np.exp(-0.5 * zb**2)
+        pa, pb = pa / np.sqrt(2 * np.pi), pb / np.sqrt(2 * np.pi)
+        depth = t_level - g
+        values = np.concatenate(
+            [share, -depth * (zb * pb - za * pa), depth * pa / s, -depth * pb / s]
+        )
+        cols = np.concatenate(
+            [np.zeros(xs.size), np.ones(xs.size), 2 + which, 2 + n + which]
+        ).astype(int)
+        return sparse.csr_matrix((values, (np.tile(rows_of, 4), cols)), shape=(xs.size, 2 + 2 * n))
+
+    p0 = np.concatenate([[deepest, 0.0], [r[0] for r in rows], [r[1] for r in rows]])
+    try:
+        fit = optimize.least_squares(residual, p0, jac=jacobian, method="trf", tr_solver="lsmr")
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    g, s = float(fit.x[0]), float(np.exp(fit.x[1]))
+    if not (np.isfinite(g) and np.isfinite(s)) or g >= np.median(t_level):
+        return None
+    return g, s
+
+
+#: A frame with no pixel above the detection level is open when the shares summed over the
+#: glottis's corridor exceed this many standard deviations of that sum on closed frames.
+FAINT_OPENING_SIGMAS = 5.0
+#: A frame whose detected glottis is smaller than this share of the widest frame's is summed
+#: over the whole corridor: a slit about as narrow as the blur shows its middle only, and
+#: its thin ends lie beyond the rim of what was detected.
+NARROW_SHARE = 0.2
+
+
+def _regions(share, found, union, rim_px, dropped):
+    """Where each frame's shares are summed: the detected glottis and its rim, and the
+    glottis's corridor (every frame's glottis, and its rim) in the frames whose glottis is
+    narrow or undetected but whose shares over the corridor stand out of the noise (a slit
+    narrower than the blur, which no single pixel shows). The noise of the corridor's sum is
+    its robust spread over the frames with nothing detected (closed, mostly). Frames whose
+    blobs the temporal check ``dropped`` (a glint in a closed frame) are closed."""
+    inplane = ndimage.generate_binary_structure(2, 1)
+    region = ndimage.binary_dilation(
+        found, inplane[None] & (np.arange(3) == 1)[:, None, None], iterations=rim_px
+    )
+    corridor = ndimage.binary_dilation(union, inplane, iterations=rim_px)
+    if not corridor.any():
+        return region
+    sizes = found.sum(axis=(1, 2))
+    narrow = (sizes > 0) & (sizes < NARROW_SHARE * sizes.max())
+    empty = sizes == 0
+    if empty.sum() >= 8:
+        sums = share[:, corridor].sum(axis=1)
+        centre = np.median(sums[empty])
+        spread = 1.4826 * np.median(np.abs(sums[empty] - centre))
+        faint = sums - centre > FAINT_OPENING_SIGMAS * max(spread, 1e-6)
+        narrow |= empty & faint & ~dropped
+    region[narrow] |= corridor
+    return region
+
+
+def _coverage(sub, masks, rim_px, glottis_masks=None, fitted=None):
+    """Each pixel's share of glottis in every frame, from the local grey levels.
+
+    A pixel's share is where its grey level lies between the tissue's level there
+    (`_tissue_levels`) and the glottis's (`_glottis_level`): 0 at the tissue's, 1 at the
+    glottis's, 1/2 on the boundary. Blur spreads the glottis's darkness into its rim without
+    changing its sum, so the shares summed over the glottis and its rim give its area to a
+    fraction of a pixel, however narrow the opening.
+
+    Arguments:
+        sub: the frames of the region of interest (frames, rows, columns).
+        masks: where the glottis is (or may be) in each frame: the tissue's levels are
+            taken away from it.
+        rim_px: the least rim (pixels) kept clear of ``masks`` for the tissue's levels.
+        glottis_masks: the glottis proper, whose widest frames give the glottis's level;
+            default ``masks``.
+        fitted: the glottis's level and the blur (grey levels, pixels) from an earlier
+            pass (`_glottis_level`), if any.
+
+    Returns:
+        (frames, rows, columns) shares (not clipped: noise averages out in the sum), the
+        tissue's levels (rows, columns), the glottis's level (grey levels) and the rim
+        (pixels) that holds the blurred boundary, and the fitted glottis's level and blur
+        (None where they could not be fitted).
+    """
+    tissue, _ = _tissue_levels(sub, masks, rim_px)
+    if fitted is None:
+        fitted = _glottis_level(sub, tissue, masks if glottis_masks is None else glottis_masks)
+    if fitted is None:
+        inside = sub[masks]
+        glottis = float(np.median(inside)) if inside.size else float(np.min(sub))
+    else:
+        glottis, blur = fitted
+        rim_px = int(np.clip(np.ceil(2.5 * blur + 0.5), rim_px, 12))
+        # a glottis wide enough to show its own level beyond the blur's reach: its median
+        # there (a real glottis is not evenly dark, which the fitted level averages over)
+        glottal = masks if glottis_masks is None else glottis_masks
+        widest = np.argsort(glottal.sum(axis=(1, 2)))[::-1][:5]
+        half = glottal[widest] & (sub[widest] < 0.5 * (tissue + glottis)[None])
+        depth = np.stack([ndimage.distance_transform_edt(m) for m in half])
+        deep = depth > 2.0 * blur + 0.5
+        if deep.sum() >= 30:
+            glottis = float(np.median(sub[widest][deep]))
+    contrast = np.maximum(tissue - glottis, 1e-3 * max(float(np.ptp(sub)), 1e-6))
+    return (tissue[None] - sub) / contrast[None], tissue, glottis, rim_px, fitted
+
+
 def segment_video(
     video,
     *,
@@ -137,6 +342,8 @@ def segment_video(
     roi_pad: int = 8,
     temporal: bool = True,
     posterior_gap: bool = True,
+    rim_px: int = 4,
+    detect_level: float = 0.25,
     progress: bool = False,
 ) -> Segmentation:
     """Glottis masks and areas from a (frames, height, width) grey video.
@@ -151,11 +358,16 @@ def segment_video(
             glottis comes within 2 pixels of (one-frame blobs).
         posterior_gap: add the persistently dark pixels that continue the glottis beyond one
             of its ends, in every frame (a glottis that never closes there).
+        rim_px: width (pixels) of the rim around the glottis over which the blurred
+            boundary's shares are summed (the optics' blur spreads an edge over about 2.5
+            standard deviations of its point spread).
+        detect_level: a frame's glottis is where its share of glottis, smoothed over a pixel,
+            exceeds this (a narrow slit, blurred, never reaches half).
         progress: show a progress bar over the frames.
     """
     from skimage import filters, measure, morphology
 
-    v = np.asarray(video, dtype=np.float32)
+    v = np.array(video, dtype=np.float32)  # a copy: the caller's frames stay as they are
     if v.ndim != 3 or v.shape[0] < 2:
         raise ValueError(f"expected a (frames, height, width) video, got shape {v.shape}")
     if not np.all(np.isfinite(v)):
@@ -167,7 +379,15 @@ def segment_video(
     med = np.median(v[:, ::2, ::2], axis=(1, 2))
     if np.median(med) <= 0:
         raise ValueError("the video is (almost) all dark: no tissue to find a glottis against")
-    v *= (np.median(med) / np.maximum(med, 1e-6))[:, None, None]
+    # flicker: each frame's median ratio to the still scene, on the lit pixels (a frame's
+    # own median would move by a percent as the glottis opens, darkening the whole frame)
+    reference = np.median(v[:: max(1, len(v) // 32), ::4, ::4], axis=0)
+    lit = reference > 0.1 * np.median(med)
+    if lit.sum() >= 100:
+        gain = np.median(v[:, ::4, ::4][:, lit] / reference[lit][None], axis=1)
+    else:
+        gain = med / np.median(med)
+    v /= np.maximum(gain, 1e-6)[:, None, None]
     shifts = np.zeros((len(v), 2))
     if register:
         still = v[:: max(1, len(v) // 32)]
@@ -197,42 +417,53 @@ def segment_video(
     open_frames = peak >= 0.5 * peak.max()
     threshold = float(filters.threshold_otsu(dark[open_frames]))
 
-    masks = np.zeros(v.shape, dtype=bool)
     frames = range(len(v))
     if progress:
         from tqdm.auto import tqdm
 
         frames = tqdm(frames, desc="segmenting", unit="frame")
-    for i in frames:
-        m = dark[i] > threshold
-        if not m.any():
-            continue
-        m = ndimage.binary_fill_holes(m)
-        lab, n = ndimage.label(m)
-        if n == 0:
-            continue
-        sizes = np.bincount(lab.ravel())
-        touches = np.bincount(lab.ravel(), weights=core.ravel())
-        keep = (sizes >= min_size) & (touches > 0)
-        keep[0] = False
-        m = keep[lab]
-        masks[i, r0:r1, c0:c1] = m
+    first = _components(dark > threshold, core, min_size, frames)
     if temporal:
-        masks[:, r0:r1, c0:c1] = _temporally_consistent(masks[:, r0:r1, c0:c1])
+        first = _temporally_consistent(first)
+    # the sub-pixel pass: each pixel's share of glottis from the local grey levels
+    share, level_tissue, level_glottis, rim_px, fitted = _coverage(sub, first, rim_px)
+    found = _components(ndimage.gaussian_filter(share, (0, 1, 1)) > detect_level, core, min_size)
+    # a frame whose only blob the temporal check drops (a glint) is closed, not faint
+    dropped = found.any(axis=(1, 2))
+    if temporal:
+        found = _temporally_consistent(found)
+    if not found.any():
+        found = first
+    dropped &= ~found.any(axis=(1, 2))
+    region = _regions(share, found, first.any(axis=0) | found.any(axis=0), rim_px, dropped)
+    # the levels again, with the tissue's taken away from every frame's glottis and rim
+    share, level_tissue, level_glottis, _, _ = _coverage(sub, region, 0, found, fitted)
+    cover = np.where(region, np.clip(share, -1.0, 2.0), 0.0).astype(np.float32)
+    masks = np.zeros(v.shape, dtype=bool)
+    masks[:, r0:r1, c0:c1] = found & (share > 0.5)
+    coverage = np.zeros(v.shape, dtype=np.float32)
+    coverage[:, r0:r1, c0:c1] = cover
     if posterior_gap and masks.any():
         # a window wider than the ROI: a gap that never closes does not move, so the ROI
         # (what moves) can end where the gap begins
         g0, g1 = max(r0 - 2 * roi_pad, 0), min(r1 + 2 * roi_pad, v.shape[1])
         h0, h1 = max(c0 - 2 * roi_pad, 0), min(c1 + 2 * roi_pad, v.shape[2])
         window = np.percentile(v[:, g0:g1, h0:h1], tissue_percentile, axis=0)
-        open_grey = float(np.median(v[masks]))
-        gap = _persistent_gap(window, open_grey, masks[:, g0:g1, h0:h1].any(axis=0))
+        gap = _persistent_gap(window, level_glottis, masks[:, g0:g1, h0:h1].any(axis=0))
         masks[:, g0:g1, h0:h1] |= gap[None]
-    area = masks.sum(axis=(1, 2)).astype(float)
+        coverage[:, g0:g1, h0:h1] = np.where(gap[None], 1.0, coverage[:, g0:g1, h0:h1])
+    # noise can leave a faint frame's sum below zero: no area is negative
+    area = np.maximum(coverage.sum(axis=(1, 2), dtype=float), 0.0)
     if area.max() == 0:
         warnings.warn("no glottis found in any frame: the area is zero throughout", stacklevel=2)
     return Segmentation(
-        masks=masks, area=area, roi=(r0, r1, c0, c1), threshold=threshold, shifts=shifts
+        masks=masks,
+        coverage=coverage,
+        area=area,
+        roi=(r0, r1, c0, c1),
+        threshold=threshold,
+        levels=(level_tissue, level_glottis),
+        shifts=shifts,
     )
 
 
@@ -247,7 +478,7 @@ MIN_PERIODICITY = 0.7
 
 def video_to_recording(path, fps: float | None = None, **kwargs):
     """Read a video and segment it: a `Recording` of the glottal area (pixels) with its
-    masks. ``fps`` (Hz) is required when the file does not store it, and overrides the
+    coverage as masks. ``fps`` (Hz) is required when the file does not store it, and overrides the
     file's rate (a container may store a playback rate, such as 30 fps)."""
     from .video import read_video
 
@@ -259,7 +490,8 @@ def frames_to_recording(
     video, fps: float | None, source="video", *, file_fps=None, check: bool = True, **kwargs
 ):
     """Segment frames already in memory: a `Recording` of the glottal area (pixels) with its
-    masks; ``source`` (a path or a label) names it.
+    coverage (each pixel's share of glottis) as masks; ``source`` (a path or a label) names
+    it.
 
     Arguments:
         video: (frames, height, width) grey frames.
@@ -307,5 +539,10 @@ def frames_to_recording(
     source = pathlib.Path(source)
     meta = {"source": source.name, "roi": list(map(int, seg.roi)), "threshold": seg.threshold}
     return Recording(
-        area=seg.area, fps=float(fps), unit="px", metadata=meta, name=source.stem, masks=seg.masks
+        area=seg.area,
+        fps=float(fps),
+        unit="px",
+        metadata=meta,
+        name=source.stem,
+        masks=seg.coverage,
     )
