@@ -61,11 +61,15 @@ def _rows_and_centres(edges: np.ndarray) -> tuple[np.ndarray, ...]:
 
 def _end_column(rows: np.ndarray, centres: np.ndarray, widths: np.ndarray) -> float:
     """The column where the folds meet at one end of the glottis, at the median of ``rows``:
-    the rows' centres near that end, fitted linearly in row (a slanted glottis) and width,
-    at zero width. Folds that open unequally shift each row's centre toward the wider one in
-    proportion to the opening, so the median centre would lean toward it; the fit at zero
-    width does not. The median where the widths hardly vary (or too few rows); kept within
-    the centres seen."""
+    the centres of the narrower half of the rows near that end, fitted linearly in row (a
+    slanted glottis) and width, at zero width. Folds that open unequally shift each row's
+    centre toward the wider one in proportion to the opening, so the median centre would
+    lean toward it; the fit at zero width does not. The median where the widths hardly vary
+    (or too few rows); kept within the centres seen."""
+    # the narrower half of the rows: the extrapolation stays short, and a glottis whose end
+    # stays open (a chink) does not lend it wide rows
+    narrow = widths <= np.median(widths)
+    rows, centres, widths = rows[narrow], centres[narrow], widths[narrow]
     if centres.size < 5 or np.std(widths) < 0.25:
         return float(np.median(centres))
     design = np.stack([np.ones_like(widths), widths, rows - np.median(rows)], axis=1)
