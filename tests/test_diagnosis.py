@@ -28,6 +28,7 @@ from vfjax import (
 from vfjax._diagnosis._score import _estimate, _hac, sensitivities
 from vfjax.datasets import demo_recording
 from vfjax.diagnosis import Candidate, default_candidates
+from vfjax.workflow import Investigation, Round
 
 
 # ------------------------------------------------------------------------------ the pieces
@@ -195,6 +196,17 @@ def test_shared_gap_case(shared_dir):
     # the bootstrap interval holds the hidden value
     low, high = refit.interval["a_gap"]
     assert low <= answer["effect_values"]["GlottalGap"] <= high
+    # the investigation's conclusion: the gap explains the recording; without it, the
+    # paper's model leaves the closed phase unexplained
+    added = Investigation(rec.name, [Round(result, d, "GlottalGap", refit.result)])
+    outcome = added.outcome(rec)
+    removed = (result.nmse - refit.result.nmse) / (result.nmse - d.noise_nmse)
+    assert outcome.status == "explained" and outcome.removed == pytest.approx(removed)
+    assert removed > 0.9 and outcome.evidence == {"GlottalGap": refit.p_value}
+    assert "GlottalGap (calibrated p = " in outcome.words
+    alone = Investigation(rec.name, [Round(result, d, None, None)]).outcome(rec)
+    assert alone.status == "unexplained" and alone.evidence == {}
+    assert any(f.startswith("closed phase") for f in alone.failures), alone.failures
 
 
 @pytest.mark.slow

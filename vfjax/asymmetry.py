@@ -64,16 +64,17 @@ def _end_column(rows: np.ndarray, centres: np.ndarray, widths: np.ndarray) -> fl
     the centres of the narrower half of the rows near that end, fitted linearly in row (a
     slanted glottis) and width, at zero width. Folds that open unequally shift each row's
     centre toward the wider one in proportion to the opening, so the median centre would
-    lean toward it; the fit at zero width does not. The median where the widths hardly vary
-    (or too few rows); kept within the centres seen."""
+    lean toward it; the fit at zero width does not. Without the width where the widths
+    hardly vary; the median centre with too few rows; kept within the centres seen."""
+    at = np.median(rows)
     # the narrower half of the rows: the extrapolation stays short, and a glottis whose end
     # stays open (a chink) does not lend it wide rows
     narrow = widths <= np.median(widths)
-    rows, centres, widths = rows[narrow], centres[narrow], widths[narrow]
-    if centres.size < 5 or np.std(widths) < 0.25:
+    r, c, w = rows[narrow], centres[narrow], widths[narrow]
+    if c.size < 5 or np.ptp(r) == 0:
         return float(np.median(centres))
-    design = np.stack([np.ones_like(widths), widths, rows - np.median(rows)], axis=1)
-    coef, *_ = np.linalg.lstsq(design, centres, rcond=None)
+    columns = [np.ones_like(w), r - at] + ([w] if np.std(w) >= 0.25 else [])
+    coef, *_ = np.linalg.lstsq(np.stack(columns, axis=1), c, rcond=None)
     return float(np.clip(coef[0], centres.min(), centres.max()))
 
 

@@ -125,6 +125,10 @@ def noise_level(measured: np.ndarray, fitted: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(e - np.median(e))) / math.sqrt(1.0 - 17.0 / 35.0))
 
 
+#: How `Comparison.failures` begins when it finds none.
+NO_CLEAR_FAILURE = "no clear failure"
+
+
 def _failures(c: Comparison) -> list[str]:
     found = []  # (weight, sentence)
     sigma = noise_level(c.measured, c.simulated)
@@ -180,7 +184,7 @@ def _failures(c: Comparison) -> list[str]:
             )
     if not found:
         return [
-            f"no clear failure: NMSE {100 * c.nmse:.2f} %, residual at the noise level "
+            f"{NO_CLEAR_FAILURE}: NMSE {100 * c.nmse:.2f} %, residual at the noise level "
             f"({_fmt(sigma, c.unit)}), descriptors within tolerance"
         ]
     found.sort(key=lambda w: -w[0])

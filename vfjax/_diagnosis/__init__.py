@@ -66,7 +66,7 @@ effect is needed, `Diagnosis.verdict` says so in words, with where the model fai
 from ._calibration import Calibrated, Calibration, Variability, calibrate
 from ._candidates import DEFAULT_CANDIDATES, Candidate, default_candidates
 from ._diagnose import diagnose, extend
-from ._investigate import Investigation, Round, extend_from, investigate
+from ._investigate import EXPLAINED_SHARE, Investigation, Outcome, Round, extend_from, investigate
 from ._options import Criteria, RefitPlan
 from ._refits import refit_each, refit_with
 from ._score import EffectScore, score_tests
@@ -81,7 +81,9 @@ __all__ = [
     "Diagnosis",
     "EffectRefit",
     "EffectScore",
+    "EXPLAINED_SHARE",
     "Investigation",
+    "Outcome",
     "RefitPlan",
     "Round",
     "default_candidates",

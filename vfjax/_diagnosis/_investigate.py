@@ -3,6 +3,7 @@
 study = vfjax.investigate(recording)        # the paper's model, then up to 2 effects
 study.rounds[0].diagnosis.verdict           # what is missing, in words
 study.final.nmse                            # the error after the last extension
+study.outcome(recording).words              # explained, unexplained, or at the noise level
 vfjax.report.write_report(study, recording, "out/")
 """
 
@@ -11,6 +12,7 @@ from collections.abc import Sequence
 
 from .._fit import FIRST_FIT_RESTARTS, FitResult, Swarm, fit_recording
 from .._fit._engine import DEFAULT_SWARM
+from ..compare import NO_CLEAR_FAILURE, compare
 from ..recording import Recording
 from ._calibration import DEFAULT_CALIBRATION, Calibration
 from ._candidates import Candidate
@@ -65,6 +67,92 @@ class Investigation:
     def added(self) -> list[str]:
         """The effects added, in order."""
         return [r.added for r in self.rounds if r.added]
+
+    def outcome(self, recording: Recording) -> "Outcome":
+        """How far the added effects explain the recording (`Outcome`), in numbers and words.
+
+        Arguments:
+            recording: the recording the investigation fitted (for the final fit's
+                comparison).
+        """
+        first, final = self.first.nmse, self.final.nmse
+        floor = self.rounds[-1].diagnosis.noise_nmse
+        misfit = first - floor
+        removed = (first - final) / misfit if misfit > 0 else float("nan")
+        evidence = {r.added: r.diagnosis.refits[r.added].p_value for r in self.rounds if r.added}
+        failures = compare(self.final, recording).failures()
+        if evidence and removed >= EXPLAINED_SHARE:
+            status = "explained"
+            added = ", ".join(f"{k} (calibrated p = {p:.2g})" for k, p in evidence.items())
+            words = (
+                f"{added} removed {removed:.0%} of the misfit above the noise floor (NMSE "
+                f"{first:.3%} -> {final:.3%}, floor {floor:.3%})"
+            )
+        elif misfit <= 0 or failures[0].startswith(NO_CLEAR_FAILURE):
+            status = "at the noise level"
+            words = (
+                f"the fit leaves a residual at the noise level and descriptors within "
+                f"tolerance (NMSE {first:.3%} -> {final:.3%}, noise floor {floor:.3%})"
+            )
+        else:
+            status = "unexplained"
+            what = (
+                "no catalogue effect is needed"
+                if not evidence
+                else f"{', '.join(evidence)} removed only {removed:.0%} of the misfit"
+            )
+            words = (
+                f"{what} (NMSE {first:.3%} -> {final:.3%}, noise floor {floor:.3%}); the "
+                f"model still misses: {'; '.join(failures[:3])}"
+            )
+        return Outcome(
+            recording_name=self.recording_name,
+            status=status,
+            first_nmse=first,
+            final_nmse=final,
+            noise_nmse=floor,
+            removed=removed,
+            evidence=evidence,
+            failures=failures,
+            words=words,
+        )
+
+
+#: The share of the misfit above the noise floor that added effects must remove for a
+#: recording to count as explained (`Investigation.outcome`).
+EXPLAINED_SHARE = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """What an investigation concluded about one recording.
+
+    Attributes:
+        recording_name: the recording's name.
+        status: "explained" (effects added with calibrated evidence removed at least
+            `EXPLAINED_SHARE` of the misfit above the noise floor); else "at the noise level"
+            (the final fit's comparison finds no clear failure: residual at the noise level,
+            descriptors within tolerance) or "unexplained" (``failures`` names what the
+            final fit misses).
+        first_nmse, final_nmse: NMSE of the paper's model's fit and of the final fit.
+        noise_nmse: the NMSE that measurement noise alone leaves (the last diagnosis's
+            estimate).
+        removed: share of the first fit's misfit above the noise floor that the added
+            effects removed (NaN at the noise level).
+        evidence: each added effect's calibrated family-wise p-value.
+        failures: where the final fit still misses, in words (`Comparison.failures`).
+        words: the conclusion in a sentence.
+    """
+
+    recording_name: str
+    status: str
+    first_nmse: float
+    final_nmse: float
+    noise_nmse: float
+    removed: float
+    evidence: dict
+    failures: list
+    words: str
 
 
 def extend_from(
