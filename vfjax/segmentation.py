@@ -167,10 +167,13 @@ def _tissue_levels(sub, masks, rim_px):
     clear = ~(ndimage.binary_dilation(masks, inplane, iterations=rim_px) if rim_px else masks)
     if not clear.any():
         return np.percentile(sub, 90.0, axis=0), clear
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: the fallback
-        tissue = np.nanmedian(np.where(clear, sub, np.nan), axis=0)
-    rare = clear.sum(axis=0) < 3
+    # the median over the clear frames: sorted with the others last (NaN sorts last)
+    count = clear.sum(axis=0)
+    ordered = np.sort(np.where(clear, sub, np.nan), axis=0)
+    low = np.take_along_axis(ordered, np.maximum(count - 1, 0)[None] // 2, axis=0)[0]
+    high = np.take_along_axis(ordered, (count // 2)[None], axis=0)[0]
+    tissue = 0.5 * (low + high)
+    rare = count < 3
     if rare.any():
         tissue[rare] = np.percentile(sub[:, rare], 90.0, axis=0)
     return tissue, clear
