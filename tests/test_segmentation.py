@@ -184,8 +184,7 @@ def _hard_clip_error(clip, **kwargs):
 )
 def test_hard_clips_within_3_percent(settings):
     """Clips rendered with a known sub-pixel area (vfjax.datasets.demo_video): the blurred
-    rim is no glottis and a narrow slit is not lost, whatever the contrast. A plain count of
-    thresholded pixels (the first, whole-pixel pass) is 10-25 % off on the blurred ones."""
+    rim is no glottis and a narrow slit is not lost, whatever the contrast."""
     clip = demo_video(seed=3, **settings)
     seg, rel = _hard_clip_error(clip)
     assert rel <= 0.03, rel
