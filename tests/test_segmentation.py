@@ -194,7 +194,7 @@ def test_hard_clips_within_3_percent(settings):
 
 def test_small_openings_are_measured():
     """Openings of 14-80 px out of a 600 px peak, a slit about as narrow as the blur: each
-    within 4 px of its true area (a whole-pixel threshold reads most of them as closed)."""
+    within 4 px of its true area."""
     clip = demo_video(seed=5)
     seg, _ = _hard_clip_error(clip)
     small = (clip.area > 10) & (clip.area < 0.15 * clip.area.max())
@@ -211,7 +211,7 @@ def test_segmentation_leaves_the_frames_unchanged():
 
 def test_featureless_clip_is_not_shifted():
     """A dim clip with faint texture gives a registration nothing to lock onto: no frame may
-    be moved by more than a pixel (a fully whitened phase correlation moved them by up to 8)."""
+    be moved by more than a pixel (a fully whitened phase correlation moves them by up to 8)."""
     clip = demo_video(contrast=0.2, blur_px=1.5, seed=1)
     assert np.abs(segment_video(clip.frames).shifts).max() <= 1
 
