@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+import vfjax
 from vfjax.datasets import demo_video
 from vfjax.segmentation import segment_video, video_to_recording
 from vfjax.video import _to_grey, read_masks, read_video
@@ -235,3 +236,28 @@ def test_fold_areas_of_a_segmented_asymmetric_glottis():
     asi = asymmetry_indices(left, right, clip.fps).asi
     true_asi = asymmetry_indices(clip.left_area, clip.right_area, clip.fps).asi
     assert abs(asi - 0.5) < 0.05 and abs(true_asi - 0.5) < 0.02
+
+
+def test_extract_writes_each_folds_area(tmp_path, capsys):
+    """`vfjax extract` of a rendered asymmetric clip: the table holds the total and each
+    fold's area (adding up to it), the sidecar the midline and the asymmetry indices."""
+    import json
+
+    from vfjax import cli
+
+    clip = demo_video(asymmetry=0.5, seed=4)
+    video = tmp_path / "clip.npy"
+    np.save(video, clip.frames)
+    out = tmp_path / "gaw.csv"
+    assert cli.main(["--no-cache", "extract", str(video), "--fps", "4000", "-o", str(out)]) == 0
+    header = out.read_text().splitlines()[0].split(",")
+    assert header == ["frame", "time_s", "area_px", "left_area_px", "right_area_px"]
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(table[:, 3] + table[:, 4], table[:, 2], atol=2e-6)
+    big = clip.area >= 0.1 * clip.area.max()
+    assert np.median(np.abs(table[big, 3] - clip.left_area[big]) / clip.left_area[big]) < 0.05
+    sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert abs(sidecar["asymmetry"]["asi"] - 0.5) < 0.05
+    assert sidecar["asymmetry"]["cycles"] >= 2
+    rec = vfjax.load_recording(out)  # the extra columns and keys load as they are
+    np.testing.assert_allclose(rec.area, table[:, 2])

@@ -290,13 +290,19 @@ def cmd_fit(args) -> int:
     return _report_failure(result, f"{rec.name}: the fit")
 
 
+def _finite_or_none(x: float):
+    return float(x) if np.isfinite(x) else None
+
+
 def cmd_extract(args) -> int:
-    """Glottal area from a high-speed video: CSV + sidecar + preview figure."""
+    """Glottal area from a high-speed video: CSV (the area and each fold's, split by the
+    glottal midline) + sidecar (with the midline and the asymmetry indices) + preview."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .asymmetry import asymmetry_indices, fold_areas, glottal_midline
     from .io import check_output_file, save_figure, write_recording
     from .recording import check_frame_rate
     from .segmentation import frames_to_recording
@@ -310,15 +316,45 @@ def cmd_extract(args) -> int:
         check_output_file(extra, args.force)
     video, file_fps = read_video(args.video)
     rec = frames_to_recording(video, args.fps, source=args.video, file_fps=file_fps, progress=True)
+    # per-fold areas split by the glottal midline, where the glottis spans rows to split
+    try:
+        midline = glottal_midline(masks=rec.masks)
+    except ValueError as err:
+        print(f"vfjax: no left/right split: {err}", file=sys.stderr)
+        midline, columns = None, {}
+    else:
+        left, right = fold_areas(rec, midline)
+        columns = {"left_area_px": left, "right_area_px": right}
+        indices = asymmetry_indices(left, right, rec.fps)
+        rec = dataclasses.replace(
+            rec,
+            metadata={
+                **rec.metadata,
+                "midline": {"top": list(midline.top), "bottom": list(midline.bottom)},
+                "asymmetry": {
+                    "asi": _finite_or_none(indices.asi),
+                    "pai": _finite_or_none(indices.pai),
+                    "cycles": indices.n_cycles,
+                },
+            },
+        )
     # masks go in the figure, not the table
-    out = write_recording(dataclasses.replace(rec, masks=None), table)
+    out = write_recording(dataclasses.replace(rec, masks=None), table, columns)
     i = int(np.argmax(rec.area))
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.6), gridspec_kw={"width_ratios": [1, 2.2]})
     a.imshow(video[i], cmap="gray")
     a.contour(rec.masks[i], levels=[0.5], colors="#e63946", linewidths=0.8)
+    if midline is not None:
+        # the midline's columns count from 1 at the left edge of pixel 0
+        span = np.array([midline.top[0] - 10.0, midline.bottom[0] + 10.0])
+        a.plot(midline.column(span) - 1.5, span, color="#ffd166", linewidth=0.8)
     a.set_title(f"frame {i} (largest area)")
     a.axis("off")
-    b.plot(rec.time * 1e3, rec.area, color="#2a9d8f")
+    b.plot(rec.time * 1e3, rec.area, color="#2a9d8f", label="total")
+    for name, values in columns.items():
+        b.plot(rec.time * 1e3, values, linewidth=0.8, label=name.replace("_area_px", " (image)"))
+    if columns:
+        b.legend()
     b.set_xlabel("time (ms)")
     b.set_ylabel("glottal area (px)")
     b.set_title(rec.name)

@@ -152,12 +152,26 @@ def write_simulation(sim, path, *, metadata: dict | None = None) -> pathlib.Path
     return path
 
 
-def write_recording(recording, path) -> pathlib.Path:
-    """Write a `Recording` as ``path`` (CSV: frame, time_s, area_<unit>) and its sidecar."""
+def write_recording(recording, path, columns: dict | None = None) -> pathlib.Path:
+    """Write a `Recording` as ``path`` (CSV: frame, time_s, area_<unit>) and its sidecar.
+
+    Arguments:
+        recording: the recording.
+        path: the table's path; the sidecar is written beside it (``.json``).
+        columns: further columns, name -> one value per frame (e.g. per-fold areas).
+    """
     path = pathlib.Path(path)
-    lines = [f"frame,time_s,area_{recording.unit}"]
-    for i, (t, a) in enumerate(zip(recording.time, recording.area)):
-        lines.append(f"{i},{t:.9f},{a:.6f}")
+    columns = {} if columns is None else columns
+    for name, values in columns.items():
+        if len(values) != recording.n_frames:
+            raise ValueError(
+                f"column {name} has {len(values)} values for {recording.n_frames} frames"
+            )
+    names = [f"area_{recording.unit}", *columns]
+    lines = [",".join(["frame", "time_s", *names])]
+    values = np.column_stack([recording.area, *columns.values()])
+    for i, (t, row) in enumerate(zip(recording.time, values)):
+        lines.append(f"{i},{t:.9f}," + ",".join(f"{a:.6f}" for a in row))
     write_text(path, "\n".join(lines) + "\n")
     sidecar = {"fps": recording.fps, "area_unit": recording.unit, **recording.metadata}
     write_json(path.with_suffix(".json"), sidecar)
