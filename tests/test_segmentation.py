@@ -261,3 +261,11 @@ def test_extract_writes_each_folds_area(tmp_path, capsys):
     assert sidecar["asymmetry"]["cycles"] >= 2
     rec = vfjax.load_recording(out)  # the extra columns and keys load as they are
     np.testing.assert_allclose(rec.area, table[:, 2])
+
+
+def test_sub_pixel_settings_are_checked():
+    clip = demo_video(noise=0.0)
+    with pytest.raises(ValueError, match="rim_px"):
+        segment_video(clip.frames, rim_px=0)
+    with pytest.raises(ValueError, match="detect_level"):
+        segment_video(clip.frames, detect_level=1.5)

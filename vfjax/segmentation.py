@@ -1,30 +1,41 @@
-"""Glottal area from high-speed video by thresholding (scikit-image).
+"""Glottal area from high-speed video, to a fraction of a pixel (scikit-image, SciPy).
 
 Method, for a (frames, height, width) grey video:
-1. Flicker: each frame is scaled so that its median brightness matches the video's.
-2. Drift: each frame is registered to the temporal median frame (of up to 32 evenly spaced
-   frames) by phase correlation
-   (whole-pixel shifts, one batched FFT for the whole video) and shifted back.
+1. Flicker: each frame is scaled by its median ratio to the still scene (the temporal median
+   of up to 32 evenly spaced frames), which the opening glottis hardly moves.
+2. Drift: each frame is registered to the still scene by a partly whitened phase correlation
+   (whole-pixel shifts, one batched FFT for the whole video) and shifted back. Full whitening
+   lets the sensor noise of a dim, featureless clip's empty high frequencies pick the shift.
 3. Region of interest: the glottis is what moves. The temporal standard deviation of each
    pixel is thresholded (Otsu); the moving components (all of at least a tenth of the largest),
    padded, make the ROI.
-4. Darkness: a pixel's *tissue* brightness is a high percentile of its values over time
-   (the glottis is closed, or elsewhere, most of the time); a frame's darkness is tissue
-   brightness minus the pixel's value. Static dark structures (shadows) have no darkness.
-5. Threshold: Otsu's threshold of the darkness pooled over the clearly open frames (an
-   adaptive, contrast-independent level half way between tissue and open glottis).
-6. Clean-up: holes are filled, components smaller than ``min_size`` pixels are dropped, and
-   only components that touch the moving region's core are kept (the dark component that
-   moves like a glottis). No opening: it would erode the thin slit of a nearly closed
-   glottis. Frames whose darkness never reaches the threshold are closed: area 0.
-7. Temporal consistency: a component that no neighbouring frame's glottis comes within two
+4. First pass, whole pixels: a pixel's *tissue* brightness is a high percentile of its values
+   over time; a frame's darkness is tissue brightness minus the pixel's value (static dark
+   structures, shadows, have none); Otsu's threshold of the darkness pooled over the clearly
+   open frames; holes filled, components smaller than ``min_size`` pixels dropped, only
+   components touching the moving region's core kept (no opening: it would erode the thin
+   slit of a nearly closed glottis).
+5. Each pixel's share of glottis: where its grey level lies between the tissue's local level
+   (its median over the frames in which no glottis comes near it) and the glottis's level
+   (`_glottis_level`: fitted with the optics' blur to blurred-opening profiles across the
+   rows of the widest frames; the glottis's median beyond the blur's reach where it is that
+   wide). The boundary is where the grey level crosses half way (share 1/2).
+6. Detection: the shares smoothed over a pixel above ``detect_level``, cleaned as in 4, and
+   temporal consistency: a component that no neighbouring frame's glottis comes within two
    pixels of (a one-frame blob from flicker or a glint) is dropped.
+7. Area: the shares summed over each frame's glottis and its rim (blur moves darkness into
+   the rim without changing its sum). A narrow glottis, or none detected but whose shares
+   over the glottis's corridor stand out of the noise (a slit narrower than the blur), is
+   summed over the whole corridor. The tissue's levels are then taken again away from
+   every frame's glottis and rim.
 8. Posterior gap: a part of the glottis that never closes has no darkness against its own
    brightness over time. Pixels whose brightness over time is nearer the open glottis's grey
    than the surrounding tissue's, adjoining the glottis beyond one of its ends and no wider
-   than it, are added to every frame's mask (a static shadow beside the glottis is not).
+   than it, are added to every frame's mask and counted whole (a static shadow beside the
+   glottis is not).
 
-Returns per-frame masks and areas (pixels).
+Returns per-frame masks (inside the half-level boundary), coverage (each pixel's share) and
+areas (pixels, the coverage's sums).
 """
 
 import dataclasses
@@ -349,7 +360,7 @@ def segment_video(
     detect_level: float = 0.25,
     progress: bool = False,
 ) -> Segmentation:
-    """Glottis masks and areas from a (frames, height, width) grey video.
+    """Glottis masks, coverage and areas (sub-pixel) from a (frames, height, width) grey video.
 
     Arguments:
         video: the frames (any real dtype; 8, 12 or 16 bit).
@@ -361,15 +372,19 @@ def segment_video(
             glottis comes within 2 pixels of (one-frame blobs).
         posterior_gap: add the persistently dark pixels that continue the glottis beyond one
             of its ends, in every frame (a glottis that never closes there).
-        rim_px: width (pixels) of the rim around the glottis over which the blurred
-            boundary's shares are summed (the optics' blur spreads an edge over about 2.5
-            standard deviations of its point spread).
+        rim_px: the least width (pixels) of the rim around the glottis over which the
+            blurred boundary's shares are summed; widened to 2.5 standard deviations of the
+            fitted blur (an edge's spread), up to 12.
         detect_level: a frame's glottis is where its share of glottis, smoothed over a pixel,
             exceeds this (a narrow slit, blurred, never reaches half).
         progress: show a progress bar over the frames.
     """
     from skimage import filters, measure, morphology
 
+    if not (isinstance(rim_px, int | np.integer) and rim_px >= 1):
+        raise ValueError(f"rim_px must be a whole number of pixels >= 1, got {rim_px!r}")
+    if not 0.0 < detect_level < 1.0:
+        raise ValueError(f"detect_level must be a share of glottis in (0, 1), got {detect_level}")
     v = np.array(video, dtype=np.float32)  # a copy: the caller's frames stay as they are
     if v.ndim != 3 or v.shape[0] < 2:
         raise ValueError(f"expected a (frames, height, width) video, got shape {v.shape}")
