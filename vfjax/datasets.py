@@ -140,6 +140,11 @@ def demo_video(
     if not (contrast > 0 and blur_px >= 0 and noise >= 0 and asymmetry > 0):
         raise ValueError("contrast and asymmetry must be > 0, blur_px and noise >= 0")
     height, width = shape
+    if not (16 <= height and 16 <= width and 2 <= glottal_length_px <= height - 4):
+        raise ValueError(
+            f"a frame of {height} x {width} pixels cannot hold a glottis {glottal_length_px} px "
+            "long: frames of at least 16 x 16, a glottis from 2 px to 4 px short of the height"
+        )
     rng = np.random.default_rng(seed)
     sub = 8
     ys = (np.arange(height * sub) + 0.5) / sub
