@@ -73,3 +73,18 @@ def test_bad_input_raises():
         describe(np.array([1.0, np.nan, 2.0]), FPS)
     with pytest.raises(ValueError, match="fps"):
         describe(np.ones(10), 0.0)
+
+
+def test_a_cycle_without_closing_time_has_no_speed_quotient():
+    """A coarsely sampled, noisy GAW (about 7 frames a cycle) with a cycle whose peak frame
+    is where it closes: that cycle has no speed quotient; the others' mean is the GAW's."""
+    a = np.array(
+        [90, 15, 15, 12, 78, 64, 11, 8, 16, 95, 13, 10, 13, 79, 80, 25, 17, 9, 85, 19]
+        + [14, 7, 74, 77, 15, 11, 15, 90, 27, 12, 5, 76, 83, 21, 10, 12, 104, 40, 14, 15]
+        + [51, 88, 8, 14, 10, 95, 46, 13, 13, 47, 88, 10, 19, 15, 96, 62, 7, 16, 36, 95],
+        dtype=float,
+    )
+    cycles = detect_cycles(a, 4000.0, 0.05)
+    assert any(c.closing == c.peak for c in cycles)
+    sq = [(c.peak - c.opening) / (c.closing - c.peak) for c in cycles if c.closing > c.peak]
+    assert describe(a, 4000.0).speed_quotient == pytest.approx(np.mean(sq), rel=1e-12)

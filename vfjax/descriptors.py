@@ -214,6 +214,7 @@ def describe(area, fps: float, level: float = 0.05) -> Descriptors:
     amp = np.array([c.amplitude for c in cycles])
     madr = np.array([c.madr for c in cycles])
     aq = np.where(madr > 0, amp / np.where(madr > 0, madr, 1.0), nan)
+    sq = np.where(t_cl > 0, t_op / np.where(t_cl > 0, t_cl, 1.0), nan)
 
     def rel_diff(x):
         return float(np.mean(np.abs(np.diff(x))) / np.mean(x)) if len(x) > 1 else nan
@@ -222,7 +223,9 @@ def describe(area, fps: float, level: float = 0.05) -> Descriptors:
         n_cycles=len(cycles),
         f0=float(1.0 / T.mean()),
         open_quotient=float(np.mean((t_op + t_cl) / T)),
-        speed_quotient=float(np.mean(t_op / t_cl)),
+        # a cycle sampled so coarsely that its peak frame is where it closes has no closing
+        # time to divide by: it has no speed quotient of its own
+        speed_quotient=float(np.nanmean(sq)) if np.isfinite(sq).any() else nan,
         closing_quotient=float(np.mean(t_cl / T)),
         asymmetry_quotient=float(np.mean(t_op / (t_op + t_cl))),
         speed_index=float(np.mean((t_op - t_cl) / (t_op + t_cl))),
