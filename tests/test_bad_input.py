@@ -221,7 +221,8 @@ def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(tmp_path, shared_dir
     assert run.returncode in (0, 1) and "Traceback" not in run.stderr, run.stderr
     status = json.loads((tmp_path / "c" / "FN003_fit.json").read_text())["status"]
     assert (status == "successful") == (run.returncode == 0)
-    rows = [f"{i},{i / FPS:.8f},{a * 1e10 + 1:g}" for i, a in enumerate(_gaw())]
+    # 120 frames: the contour file's length bucket, so its compiled programs serve again
+    rows = [f"{i},{i / FPS:.8f},{a * 1e10 + 1:g}" for i, a in enumerate(_gaw(120))]
     run = _cli("fit", _table(tmp_path, rows=rows), *quick, cwd=tmp_path)
     assert run.returncode == 1, run.stderr
     assert "Traceback" not in run.stderr

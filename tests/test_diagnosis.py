@@ -163,10 +163,13 @@ QUICK_LEVEL = {
 
 @pytest.mark.xdist_group("diagnosis")  # one worker compiles the calibration's programs once
 def test_shared_no_effect_case_flags_nothing(shared_dir):
-    _, answer, _, d = _shared(shared_dir, "syn_base")
+    rec, answer, result, d = _shared(shared_dir, "syn_base")
     assert answer["hidden_effects"] == []
     assert d.needed == [], d.verdict
     assert d.verdict.startswith("No ")
+    # the investigation's conclusion: the paper's model fits to the noise (2 px)
+    outcome = Investigation(rec.name, [Round(result, d, None, None)]).outcome(rec)
+    assert outcome.status == "at the noise level" and outcome.evidence == {}, outcome.words
     cal = d.calibrated
     # the uncalibrated F test calls the pressure modulation's fall significant; against
     # null recordings of the fitted model it is not, and no candidate is

@@ -90,10 +90,8 @@ class Investigation:
             )
         elif misfit <= 0 or failures[0].startswith(NO_CLEAR_FAILURE):
             status = "at the noise level"
-            added = "".join(
-                f"{k} (calibrated p = {p:.2g}) added, removing {removed:.0%} of the misfit; "
-                for k, p in evidence.items()
-            )
+            added = ", ".join(f"{k} (calibrated p = {p:.2g})" for k, p in evidence.items())
+            added = f"{added} added, removing {removed:.0%} of the misfit; " if added else ""
             words = (
                 f"{added}the fit leaves a residual at the noise level and descriptors within "
                 f"tolerance (NMSE {first:.3%} -> {final:.3%}, noise floor {floor:.3%})"
