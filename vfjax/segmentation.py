@@ -326,17 +326,17 @@ def _coverage(sub, masks, rim_px, glottis_masks=None, fitted=None):
         (None where they could not be fitted).
     """
     tissue, _ = _tissue_levels(sub, masks, rim_px)
+    glottal = masks if glottis_masks is None else glottis_masks
     if fitted is None:
-        fitted = _glottis_level(sub, tissue, masks if glottis_masks is None else glottis_masks)
+        fitted = _glottis_level(sub, tissue, glottal)
     if fitted is None:
-        inside = sub[masks]
+        inside = sub[glottal]
         glottis = float(np.median(inside)) if inside.size else float(np.min(sub))
     else:
         glottis, blur = fitted
         rim_px = int(np.clip(np.ceil(2.5 * blur + 0.5), rim_px, 12))
         # a glottis wide enough to show its own level beyond the blur's reach: its median
         # there (a real glottis is not evenly dark, which the fitted level averages over)
-        glottal = masks if glottis_masks is None else glottis_masks
         widest = np.argsort(glottal.sum(axis=(1, 2)))[::-1][:5]
         half = glottal[widest] & (sub[widest] < 0.5 * (tissue + glottis)[None])
         depth = np.stack([ndimage.distance_transform_edt(m) for m in half])
