@@ -319,6 +319,9 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
     text = path.read_text()
     for name in d.ranking:
         assert f"| {name} |" in text
+    # nothing added: the paper's model leaves the gap's closed phase unexplained
+    assert "**Outcome: unexplained.** No catalogue effect is needed" in text
+    assert "closed phase: the measured area never falls below" in text
     assert (tmp_path / f"{rec.name}_rounds.png").stat().st_size > 1000
     assert (tmp_path / f"{rec.name}_round1_compare.png").exists()
     # with edges (a glottis of 10 rows, symmetric about column 50) the report gives the

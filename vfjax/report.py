@@ -252,7 +252,14 @@ def write_report(
         lines.append(f"| {i} | {_model_words(r.fit)} | {r.fit.nmse:.3%} | {r.added or '-'} |")
     if study.final is not study.rounds[-1].fit:
         lines.append(f"| final | {_model_words(study.final)} | {study.final.nmse:.3%} | |")
-    lines += ["", f"**Conclusion.** {study.rounds[-1].diagnosis.verdict}", ""]
+    outcome = study.outcome(recording)
+    lines += [
+        "",
+        f"**Conclusion.** {study.rounds[-1].diagnosis.verdict}",
+        "",
+        f"**Outcome: {outcome.status}.** {outcome.words[0].upper() + outcome.words[1:]}.",
+        "",
+    ]
     failed = [(i, r.fit) for i, r in enumerate(study.rounds, 1) if r.fit.failed]
     if study.final.failed:
         failed.append(("final", study.final))
