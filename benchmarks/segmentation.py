@@ -108,8 +108,7 @@ RENDERED = [
 
 def rendered(settings, seed):
     clip = demo_video(seed=seed, **settings)
-    frames = _to_grey(clip.frames) if clip.frames.ndim == 4 else clip.frames
-    area = segment_video(frames).area
+    area = segment_video(_to_grey(clip.frames)).area
     m, c = scores(area, clip.area)
     small = (clip.area >= 10) & (clip.area < 0.15 * clip.area.max())
     return m, c, float(np.median(np.abs(area[small] - clip.area[small])))

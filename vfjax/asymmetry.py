@@ -49,6 +49,12 @@ class Midline:
         slope = (c1 - c0) / (r1 - r0) if r1 != r0 else 0.0
         return c0 + (np.asarray(row, dtype=float) - r0) * slope
 
+    def image_column(self, row) -> np.ndarray:
+        """The midline's column at image row(s) ``row`` in image coordinates (pixel j's
+        centre at j, as matplotlib's ``imshow`` draws it): the edges' 1-based columns put
+        pixel j over [j + 1, j + 2)."""
+        return self.column(row) - 1.5
+
 
 def _rows_and_centres(edges: np.ndarray) -> tuple[np.ndarray, ...]:
     """(frame, row, centre column, width) of every row the glottis reaches in ``edges``."""

@@ -345,9 +345,8 @@ def cmd_extract(args) -> int:
     a.imshow(video[i], cmap="gray")
     a.contour(rec.masks[i], levels=[0.5], colors="#e63946", linewidths=0.8)
     if midline is not None:
-        # the midline's columns count from 1 at the left edge of pixel 0
         span = np.array([midline.top[0] - 10.0, midline.bottom[0] + 10.0])
-        a.plot(midline.column(span) - 1.5, span, color="#ffd166", linewidth=0.8)
+        a.plot(midline.image_column(span), span, color="#ffd166", linewidth=0.8)
     a.set_title(f"frame {i} (largest area)")
     a.axis("off")
     b.plot(rec.time * 1e3, rec.area, color="#2a9d8f", label="total")

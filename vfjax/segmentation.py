@@ -167,17 +167,24 @@ def _components(candidates, core, min_size, frames=None):
     return out
 
 
+def _grow_frames(masks, pixels):
+    """Each frame's mask (frames, rows, columns) grown by ``pixels`` within its own frame
+    (scipy grows until nothing changes when told 0 iterations: 0 leaves the masks as they
+    are)."""
+    if pixels < 1:
+        return masks
+    in_frame = np.zeros((3, 3, 3), dtype=bool)
+    in_frame[1] = ndimage.generate_binary_structure(2, 1)
+    return ndimage.binary_dilation(masks, in_frame, iterations=pixels)
+
+
 def _tissue_levels(sub, masks, rim_px):
     """Each pixel's tissue grey level: its median over the frames in which no glottis comes
     within ``rim_px`` pixels of it (unbiased by noise, unlike a high percentile; a pixel
-    that the glottis's rim covers in nearly every frame falls back on its 90th percentile),
-    and where each frame is clear of the glottis (frames, rows, columns)."""
-    inplane = np.zeros((3, 3, 3), dtype=bool)
-    inplane[1] = ndimage.generate_binary_structure(2, 1)
-    # (scipy dilates until nothing changes when told 0 iterations)
-    clear = ~(ndimage.binary_dilation(masks, inplane, iterations=rim_px) if rim_px else masks)
+    that the glottis's rim covers in nearly every frame falls back on its 90th percentile)."""
+    clear = ~_grow_frames(masks, rim_px)
     if not clear.any():
-        return np.percentile(sub, 90.0, axis=0), clear
+        return np.percentile(sub, 90.0, axis=0)
     # the median over the clear frames: sorted with the others last (NaN sorts last)
     count = clear.sum(axis=0)
     ordered = np.sort(np.where(clear, sub, np.nan), axis=0)
@@ -187,7 +194,7 @@ def _tissue_levels(sub, masks, rim_px):
     rare = count < 3
     if rare.any():
         tissue[rare] = np.percentile(sub[:, rare], 90.0, axis=0)
-    return tissue, clear
+    return tissue
 
 
 def _glottis_level(sub, tissue, masks, n_frames=5):
@@ -280,11 +287,8 @@ def _regions(share, found, union, rim_px, dropped):
     narrower than the blur, which no single pixel shows). The noise of the corridor's sum is
     its robust spread over the frames with nothing detected (closed, mostly). Frames whose
     blobs the temporal check ``dropped`` (a glint in a closed frame) are closed."""
-    inplane = ndimage.generate_binary_structure(2, 1)
-    region = ndimage.binary_dilation(
-        found, inplane[None] & (np.arange(3) == 1)[:, None, None], iterations=rim_px
-    )
-    corridor = ndimage.binary_dilation(union, inplane, iterations=rim_px)
+    region = _grow_frames(found, rim_px)
+    corridor = _grow_frames(union[None], rim_px)[0]
     if not corridor.any():
         return region
     sizes = found.sum(axis=(1, 2))
@@ -325,7 +329,7 @@ def _coverage(sub, masks, rim_px, glottis_masks=None, fitted=None):
         (pixels) that holds the blurred boundary, and the fitted glottis's level and blur
         (None where they could not be fitted).
     """
-    tissue, _ = _tissue_levels(sub, masks, rim_px)
+    tissue = _tissue_levels(sub, masks, rim_px)
     glottal = masks if glottis_masks is None else glottis_masks
     if fitted is None:
         fitted = _glottis_level(sub, tissue, glottal)

@@ -81,16 +81,15 @@ class Investigation:
         removed = (first - final) / misfit if misfit > 0 else float("nan")
         evidence = {r.added: r.diagnosis.refits[r.added].p_value for r in self.rounds if r.added}
         failures = compare(self.final, recording).failures()
+        added = ", ".join(f"{k} (calibrated p = {p:.2g})" for k, p in evidence.items())
         if evidence and removed >= EXPLAINED_SHARE:
             status = "explained"
-            added = ", ".join(f"{k} (calibrated p = {p:.2g})" for k, p in evidence.items())
             words = (
                 f"{added} removed {removed:.0%} of the misfit above the noise floor (NMSE "
                 f"{first:.3%} -> {final:.3%}, floor {floor:.3%})"
             )
         elif misfit <= 0 or failures[0].startswith(NO_CLEAR_FAILURE):
             status = "at the noise level"
-            added = ", ".join(f"{k} (calibrated p = {p:.2g})" for k, p in evidence.items())
             added = f"{added} added, removing {removed:.0%} of the misfit; " if added else ""
             words = (
                 f"{added}the fit leaves a residual at the noise level and descriptors within "
