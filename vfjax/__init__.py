@@ -59,18 +59,22 @@ from .integrator import (  # noqa: E402
     DenseOutput,
     Simulation,
     SimulationError,
+    fold_displacements,
     simulate,
+    simulated_fold_areas,
 )
 from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, initial_model, match_fundamental_frequency, paper_model, preset  # noqa: E402
 from .recording import FRAME_RATE_RANGE_HZ, Recording, load_recording, load_segments  # noqa: E402
 from .subject import Subject  # noqa: E402
 from .terms import (  # noqa: E402
+    AbstractFoldPair,
     AbstractForce,
     AbstractHoldVariability,
     AbstractObservation,
     AbstractPressure,
     AbstractStatefulForce,
+    AbstractStatefulTerm,
     AbstractTerm,
     AmplitudeJitter,
     BernoulliForce,
@@ -81,6 +85,7 @@ from .terms import (  # noqa: E402
     Elastic,
     FlowSeparation,
     GlottalGap,
+    LeftRightAsymmetry,
     MucosalDelay,
     PowerLawTissue,
     PressureModulation,
@@ -110,11 +115,13 @@ __all__ = [
     "as_parameter",
     "load_segments",
     "PRESETS",
+    "AbstractFoldPair",
     "AbstractForce",
     "AbstractHoldVariability",
     "AbstractObservation",
     "AbstractPressure",
     "AbstractStatefulForce",
+    "AbstractStatefulTerm",
     "AbstractTerm",
     "AmplitudeJitter",
     "BernoulliForce",
@@ -123,6 +130,7 @@ __all__ = [
     "Context",
     "CubicStiffness",
     "GlottalGap",
+    "LeftRightAsymmetry",
     "MucosalDelay",
     "PowerLawTissue",
     "PressureModulation",
@@ -169,5 +177,7 @@ __all__ = [
     "phases",
     "preset",
     "simulate",
+    "simulated_fold_areas",
+    "fold_displacements",
     "units",
 ]

@@ -43,6 +43,7 @@ from . import phases
 from ._hermite import hermite, hermite_root, hermite_slope
 from ._sampling import DEFAULT_SUBSTEPS, Sampling, length_bucket
 from .model import VocalFoldModel
+from .terms.base import AbstractFoldPair, AbstractStatefulTerm
 
 #: Event budget per second of simulated time. A glottal cycle has up to 7 events, so the
 #: default budget covers f0 up to ~570 Hz; beyond it `Simulation.complete` may turn False
@@ -154,6 +155,53 @@ class Simulation(eqx.Module):
     n_events: Int[Array, ""]
     result: "RESULTS"
     dense: DenseOutput
+
+
+def fold_displacements(model: VocalFoldModel, simulation: Simulation) -> tuple[Array, Array]:
+    """The left and right folds' displacements (cm) at the frames of ``simulation`` (a run
+    of ``model``): from a fold pair's states (`vfjax.LeftRightAsymmetry`), read off their
+    cubic Hermite interpolant between the integrator's nodes; both the displacement itself
+    for a model of one symmetric fold."""
+    x = simulation.displacement
+    pair = model.term(AbstractFoldPair)
+    if pair is None:
+        return x, x
+    slot = [t for t in model.terms if isinstance(t, AbstractStatefulTerm)].index(pair)
+    dense = simulation.dense
+    nodes = dense.z[slot]
+    times = jnp.clip(simulation.time, dense.t[0], dense.t[-1])
+    j, theta, span = dense._locate(times)
+
+    def read(k):
+        y0, r0, y1, r1 = (
+            nodes[j, 2 * k],
+            nodes[j, 2 * k + 1],
+            nodes[j + 1, 2 * k],
+            nodes[j + 1, 2 * k + 1],
+        )
+        return hermite(theta, y0, r0 * span, y1, r1 * span)
+
+    state = jnp.stack([read(k) for k in range(nodes.shape[-1] // 2)], axis=-1)
+    return pair.fold_displacements(x, state)
+
+
+def simulated_fold_areas(model: VocalFoldModel, simulation: Simulation) -> tuple[Array, Array]:
+    """The simulated left and right GAWs (pixels), split as a glottal midline splits a
+    measured one (`vfjax.asymmetry.fold_areas`): each fold's share of the glottis is the
+    part of the opening between its edge and the midline,
+    ``clip(x_fold - x_0, 0, x_left + x_right - 2 x_0)`` of ``x_left + x_right - 2 x_0``, so
+    the two add up to the observed GAW (observation terms included). A fold past the
+    midline leaves the whole opening to the other; closed, both are 0 (or half of a
+    negative area each, as `Simulation.area`)."""
+    left, right = fold_displacements(model, simulation)
+    x0 = model.contact_displacement
+    open_l, open_r = left - x0, right - x0
+    width = open_l + open_r
+    ok = width > 0
+    safe = jnp.where(ok, width, 1.0)
+    share = jnp.where(ok, jnp.clip(open_l, 0.0, safe) / safe, 0.5)
+    area = simulation.area
+    return area * share, area * (1.0 - share)
 
 
 # The regime flags travel in the scan's carry as bits of one integer: one array to update

@@ -1,5 +1,6 @@
 """A vocal-fold model: the subject's constants, a tuple of terms, and the camera scale."""
 
+import dataclasses
 from collections.abc import Callable
 from typing import ClassVar
 
@@ -11,11 +12,13 @@ from jaxtyping import Array, ArrayLike
 from ._validate import as_parameter, check_constraints, constraints_hold, positive
 from .subject import Subject
 from .terms.base import (
+    AbstractFoldPair,
     AbstractForce,
     AbstractHoldVariability,
     AbstractObservation,
     AbstractPressure,
     AbstractStatefulForce,
+    AbstractStatefulTerm,
     AbstractTerm,
     Context,
 )
@@ -67,6 +70,8 @@ class VocalFoldModel(eqx.Module):
         kinds = [type(t) for t in self.terms]
         if len(set(kinds)) != len(kinds):
             raise ValueError("a model holds at most one term of each class")
+        if sum(isinstance(t, AbstractFoldPair) for t in self.terms) > 1:
+            raise ValueError("a model holds at most one fold pair (one left-right asymmetry)")
         names: dict[str, str] = {}
         for term in self.terms:
             for name in term.parameters:
@@ -265,7 +270,22 @@ class VocalFoldModel(eqx.Module):
             pressure: the subglottal pressure at ``t`` (dyne/cm²) if already computed.
         """
         ctx = self.context(t, x, v, flow, inner, closing, xc, pressure)
-        total = jnp.zeros_like(jnp.asarray(x, dtype=float))
+        total, rates = self._forces(ctx, state)
+        pair = self.term(AbstractFoldPair)
+        if pair is None:
+            return total / self.subject.mass, tuple(rates)
+
+        def force(x_fold, v_fold):
+            return self._forces(dataclasses.replace(ctx, x=x_fold, v=v_fold), state)[0]
+
+        slot = rates.index(None)
+        acceleration, rates[slot] = pair.fold_rates(ctx, state[slot], force)
+        return acceleration, tuple(rates)
+
+    def _forces(self, ctx: Context, state: tuple) -> tuple[Array, list]:
+        """The force terms' sum (dyne) at ``ctx``, in the order of ``terms``, and each
+        stateful force's state rate (None in a fold pair's place)."""
+        total = jnp.zeros_like(jnp.asarray(ctx.x, dtype=float))
         states = iter(state)
         rates = []
         for term in self.terms:
@@ -275,18 +295,22 @@ class VocalFoldModel(eqx.Module):
                 own = next(states)
                 total = total + term.force(ctx, own)
                 rates.append(term.state_rate(ctx, own))
-        return total / self.subject.mass, tuple(rates)
+            elif isinstance(term, AbstractStatefulTerm):
+                next(states)
+                rates.append(None)
+        return total, rates
 
     def initial_state(self) -> tuple:
-        """The internal states at time 0: one pytree per `AbstractStatefulForce` term, in the
-        order of ``terms``; an empty tuple for a model without any."""
-        return tuple(t.initial_state() for t in self.terms if isinstance(t, AbstractStatefulForce))
+        """The internal states at time 0: one pytree per `AbstractStatefulTerm` (stateful
+        forces, a fold pair), in the order of ``terms``; an empty tuple for a model without
+        any."""
+        return tuple(t.initial_state() for t in self.terms if isinstance(t, AbstractStatefulTerm))
 
     def check_step(self, step: float) -> None:
         """Raise ValueError if an RK4 step of ``step`` seconds would integrate a stateful
         term's stiff states unstably (``max_rate * step`` beyond 2.5)."""
         for term in self.terms:
-            rate = getattr(term, "max_rate", 0.0) if isinstance(term, AbstractStatefulForce) else 0
+            rate = term.max_rate if isinstance(term, AbstractStatefulTerm) else 0.0
             if rate * step > _STIFF_LIMIT:
                 raise ValueError(
                     f"{type(term).__name__} has states relaxing at up to {rate:.3g} 1/s: an RK4 "
@@ -296,7 +320,7 @@ class VocalFoldModel(eqx.Module):
 
     def held_state(self, state: tuple, duration: ArrayLike) -> tuple:
         """The internal states after a closure hold of ``duration`` (s)."""
-        stateful = [t for t in self.terms if isinstance(t, AbstractStatefulForce)]
+        stateful = [t for t in self.terms if isinstance(t, AbstractStatefulTerm)]
         return tuple(t.held_state(z, duration) for t, z in zip(stateful, state, strict=True))
 
     def observe(self, t: Array, x: Array, displacement_at: Callable[[Array], Array]) -> Array:

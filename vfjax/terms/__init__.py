@@ -5,34 +5,41 @@
 - `effects`: candidate effects the paper's model lacks (MODEL_SPEC.md's catalogue).
 - `variability`: cycle-to-cycle variability (closure, stiffness and amplitude jitter).
 - `tissue`: power-law (fractional) viscoelastic tissue, a term with internal states.
+- `folds`: left-right asymmetry, a left and a right fold in place of one.
 """
 
 from .base import (
+    AbstractFoldPair,
     AbstractForce,
     AbstractHoldVariability,
     AbstractObservation,
     AbstractPressure,
     AbstractStatefulForce,
+    AbstractStatefulTerm,
     AbstractTerm,
     Context,
 )
 from .effects import CATALOGUE, CubicStiffness, GlottalGap, MucosalDelay, PressureModulation
+from .folds import LeftRightAsymmetry
 from .paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
 from .tissue import PowerLawTissue, grunwald_letnikov
 from .variability import AmplitudeJitter, ClosureJitter, StiffnessJitter, TimingJitter
 
 __all__ = [
+    "AbstractFoldPair",
     "AbstractForce",
     "AbstractHoldVariability",
     "AbstractObservation",
     "AbstractPressure",
     "AbstractStatefulForce",
+    "AbstractStatefulTerm",
     "AbstractTerm",
     "AmplitudeJitter",
     "BernoulliForce",
     "CATALOGUE",
     "CubicStiffness",
     "GlottalGap",
+    "LeftRightAsymmetry",
     "MucosalDelay",
     "PowerLawTissue",
     "PressureModulation",

@@ -6,6 +6,8 @@ of these kinds, told apart by which abstract class it derives from:
 - `AbstractForce`: adds a force (dyne) on one fold to the equation of motion.
 - `AbstractStatefulForce`: a force with internal states of its own (relaxation modes, a
   flow), integrated with the folds' motion by the same event-located RK4.
+- `AbstractFoldPair`: a left and a right fold in place of the one symmetric fold, their
+  difference held as internal states (`AbstractStatefulTerm`, like the stateful forces').
 - `AbstractPressure`: transforms the subglottal pressure as a function of time.
 - `AbstractObservation`: transforms the glottal area that the camera sees.
 - `AbstractHoldVariability`: scales the length of each closure hold (cycle-to-cycle
@@ -133,18 +135,16 @@ class AbstractForce(AbstractTerm):
         raise NotImplementedError
 
 
-class AbstractStatefulForce(AbstractTerm):
-    """A force on one fold (dyne) that depends on internal states of the term's own.
+class AbstractStatefulTerm(AbstractTerm):
+    """A term with internal states of its own, integrated with the folds' displacement and
+    velocity by the same event-located RK4.
 
-    The states (a pytree of float arrays, e.g. the relaxation modes of a viscoelastic
-    tissue) obey ``d state / dt = state_rate(ctx, state)`` and are integrated with the folds'
-    displacement and velocity by the same RK4, with the same located events (where a regime
-    switches, the states are read off the step's cubic Hermite interpolant, so their
-    derivatives carry the event time's). During a closure hold the folds rest (x fixed,
-    v = 0) and the states become `held_state` after the hold's duration.
-
-    A model without such a term carries no internal state: its programs are those of a model
-    whose state is the displacement and velocity alone.
+    The states (a pytree of float arrays) start at `initial_state`; where a regime switches
+    they are read off the step's cubic Hermite interpolant, so their derivatives carry the
+    event time's. During a closure hold the folds rest (x fixed, v = 0) and the states become
+    `held_state` after the hold's duration. A model without such a term carries no internal
+    state: its programs are those of a model whose state is the displacement and velocity
+    alone.
     """
 
     #: The fastest decay rate of the states (1/s), if they are stiff: RK4 is stable for
@@ -155,6 +155,18 @@ class AbstractStatefulForce(AbstractTerm):
     def initial_state(self) -> PyTree[Array]:
         """The states at time 0, with the folds at rest (float arrays of fixed shapes)."""
 
+    def held_state(self, state: PyTree[Array], duration: ArrayLike) -> PyTree[Array]:
+        """The states after ``duration`` (s) of closure hold (x fixed, v = 0); by default
+        unchanged. A term whose states evolve while the folds rest overrides it with the
+        exact solution of its dynamics at v = 0."""
+        return state
+
+
+class AbstractStatefulForce(AbstractStatefulTerm):
+    """A force on one fold (dyne) that depends on internal states of the term's own (e.g.
+    the relaxation modes of a viscoelastic tissue), which obey
+    ``d state / dt = state_rate(ctx, state)``."""
+
     @abc.abstractmethod
     def state_rate(self, ctx: Context, state: PyTree[Array]) -> PyTree[Array]:
         """d state / dt at the instant ``ctx`` (the states' units per second)."""
@@ -163,11 +175,35 @@ class AbstractStatefulForce(AbstractTerm):
     def force(self, ctx: Context, state: PyTree[Array]) -> Array:
         """The force (dyne) at the instant ``ctx`` with internal ``state``."""
 
-    def held_state(self, state: PyTree[Array], duration: ArrayLike) -> PyTree[Array]:
-        """The states after ``duration`` (s) of closure hold (x fixed, v = 0); by default
-        unchanged. A term whose states evolve while the folds rest overrides it with the
-        exact solution of its ``state_rate`` at v = 0."""
-        return state
+
+class AbstractFoldPair(AbstractStatefulTerm):
+    """A left and a right fold in place of the paper's one symmetric fold.
+
+    The integrator's displacement x becomes the folds' mean, ``(x_left + x_right) / 2``: the
+    glottal area ``A_g0 + l (x_left + x_right) = A_g0 + 2 l x``, and with it the flow, the
+    contact and every located event, depend on it alone. The term's internal states describe
+    how the folds differ; it turns the force on one fold (every force term evaluated at that
+    fold's displacement and velocity, with the glottis's shared mode flags and aerodynamic
+    force) into the mean's acceleration and its states' rates.
+    """
+
+    @abc.abstractmethod
+    def fold_rates(
+        self, ctx: Context, state: PyTree[Array], force: Callable[[Array, Array], Array]
+    ) -> tuple[Array, PyTree[Array]]:
+        """(d²x/dt² of the folds' mean displacement in cm/s², d state / dt).
+
+        Arguments:
+            ctx: the instant, at the folds' mean displacement and velocity.
+            state: the term's internal states.
+            force: ``force(x, v)``, the force (dyne) of the model's force terms on a fold at
+                displacement ``x`` (cm) moving at ``v`` (cm/s) at this instant.
+        """
+
+    @abc.abstractmethod
+    def fold_displacements(self, x: ArrayLike, state: PyTree[Array]) -> tuple[Array, Array]:
+        """(x_left, x_right) in cm, from the mean displacement ``x`` (cm) and the states
+        (their leaves with the same leading axes as ``x``)."""
 
 
 class AbstractPressure(AbstractTerm):

@@ -1,0 +1,124 @@
+"""Left-right asymmetry (two folds, Steinecke and Herzel's Q) against independent truths: the
+paper's model at Q = 1, two undamped oscillators' closed forms, and central differences."""
+
+import functools
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vfjax
+from vfjax import LeftRightAsymmetry
+from vfjax.asymmetry import asymmetry_indices
+
+FPS = 4000.0
+
+
+def test_at_q_one_the_model_is_the_papers():
+    for name in ("N1", "N3"):
+        base = vfjax.preset(name)
+        ref = vfjax.simulate(base, FPS, 201)
+        model = base.with_term(LeftRightAsymmetry(Q=1.0))
+        sim = vfjax.simulate(model, FPS, 201)
+        np.testing.assert_allclose(sim.area, ref.area, rtol=0, atol=1e-9, err_msg=name)
+        left, right = vfjax.simulated_fold_areas(model, sim)
+        np.testing.assert_allclose(left, right, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(left + right, sim.area, rtol=0, atol=1e-9)
+
+
+class _Push(vfjax.AbstractForce):
+    """A constant force (dyne) on each fold."""
+
+    F0: float = eqx.field(default=100.0, converter=vfjax.as_parameter)
+    parameters: ClassVar = {"F0": ("F0", "dyne")}
+
+    def force(self, ctx):
+        return self.F0 + 0.0 * ctx.x
+
+
+@pytest.mark.parametrize("Q", [0.8, 1.25])
+def test_two_springs_pushed_from_rest_follow_their_closed_forms(Q):
+    """Springs alone, pushed by a constant force F0 from x = 0 (no flow, damping or contact):
+    the left fold (M, K) follows F0 / K (1 - cos w t), the right one (M / Q, Q K)
+    F0 / (Q K) (1 - cos Q w t), w = sqrt(K / M). The error falls as RK4's h^4 (16x per
+    halving) to below 1e-5 of the motion."""
+    base = vfjax.preset("N3")
+    K, M = float(base.params()["K"]), float(base.subject.mass)
+    model = vfjax.VocalFoldModel(
+        base.subject, (vfjax.Elastic(K=K), _Push(F0=100.0), LeftRightAsymmetry(Q=Q)), base.S
+    )
+    errors = []
+    for substeps in (8, 16):
+        sim = vfjax.simulate(model, FPS, 101, initial_displacement=0.0, substeps=substeps)
+        t, w = np.asarray(sim.time), np.sqrt(K / M)
+        left, right = vfjax.fold_displacements(model, sim)
+        exact_l = 100.0 / K * (1.0 - np.cos(w * t))
+        exact_r = 100.0 / (Q * K) * (1.0 - np.cos(Q * w * t))
+        scale = exact_l.max()
+        errors.append(
+            max(
+                np.abs(left - exact_l).max() / scale,
+                np.abs(right - exact_r).max() / scale,
+                np.abs(sim.displacement - 0.5 * (exact_l + exact_r)).max() / scale,
+            )
+        )
+    assert errors[1] < 1e-5
+    assert errors[0] / errors[1] > 12.0
+
+
+def _gaws(model, rel):
+    """The total and the left GAW with Q scaled by (1 + rel)."""
+    scaled = model.set(Q=model.params()["Q"] * (1.0 + rel))
+    sim = vfjax.simulate(scaled, FPS, 201, throw=False)
+    left, _ = vfjax.simulated_fold_areas(scaled, sim)
+    return jnp.stack([sim.area, left])
+
+
+@pytest.mark.parametrize("name", ["N1", "N2", "N3", "N4"])
+def test_forward_mode_matches_central_differences(name):
+    """d GAW / d Q, total and left fold, at Q = 1 (the off-value, where the folds move
+    together) and at Q = 1.2, against central differences: to 1e-4 of their size."""
+    for q in (1.0, 1.2):
+        gaws = functools.partial(_gaws, vfjax.preset(name).with_term(LeftRightAsymmetry(Q=q)))
+        jac = eqx.filter_jit(jax.jacfwd(gaws))(0.0)
+        run = eqx.filter_jit(gaws)
+        fd = (run(1e-6) - run(-1e-6)) / 2e-6
+        for k, which in enumerate(("total", "left")):
+            size = float(jnp.linalg.norm(fd[k]))
+            assert size > 100.0, f"{name}: the {which} GAW must depend on Q"
+            err = float(jnp.linalg.norm(jac[k] - fd[k])) / size
+            assert err < 1e-4, f"{name}, Q {q}: d {which} GAW / d Q off by {100 * err:.2g} %"
+
+
+def test_the_indices_see_the_asymmetry():
+    """The amplitude symmetry index, computed by the same code as for measured per-fold
+    areas, is 1 at Q = 1 and falls below 0.97 at Q = 0.8 and 1.25 (on N3 and N1; which
+    fold moves more depends on where the glottis entrains them, not on Q's side alone); the
+    two areas add up to the GAW and are not negative while it is open."""
+    for name in ("N1", "N3"):
+        base = vfjax.preset(name)
+        for q in (1.0, 0.8, 1.25):
+            model = base.with_term(LeftRightAsymmetry(Q=q))
+            sim = vfjax.simulate(model, FPS, 201)
+            left, right = (np.asarray(a) for a in vfjax.simulated_fold_areas(model, sim))
+            np.testing.assert_allclose(left + right, sim.area, atol=1e-9)
+            opened = np.asarray(sim.area) > 0
+            assert left[opened].min() >= 0.0 and right[opened].min() >= 0.0
+            indices = asymmetry_indices(left, right, FPS)
+            assert indices.n_cycles >= 3
+            if q == 1.0:
+                assert indices.asi == pytest.approx(1.0, abs=1e-9)
+            else:
+                assert indices.asi < 0.97, f"{name}, Q {q}: ASI {indices.asi:.3f}"
+
+
+def test_q_must_be_positive_and_one_pair_per_model():
+    with pytest.raises(ValueError, match="Q"):
+        LeftRightAsymmetry(Q=0.0)
+    model = vfjax.preset("N3").with_term(LeftRightAsymmetry(Q=1.1))
+    with pytest.raises(ValueError, match="Q"):
+        model.set(Q=-1.0)
+    assert model.params()["Q"] == pytest.approx(1.1)
