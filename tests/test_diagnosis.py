@@ -327,7 +327,7 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
     # with edges (a glottis of 10 rows, symmetric about column 50) the report gives the
     # asymmetry indices of symmetric folds
     half = np.repeat(rec.area[:, None], 10, axis=1) / 20.0
-    sided = dataclasses.replace(rec, edges=np.stack([50.0 - half, 50.0 + half], axis=1))
+    sided = dataclasses.replace(rec, edges=np.stack([50.0 - half, 50.0 + half], axis=1), folds=None)
     text = vfjax.report.write_report(d, sided, tmp_path / "sided").read_text()
     assert "ASI 1.000, phase asymmetry index PAI 0.000" in text
     # the plain API: add the effect to the fitted model and refit from the current fit

@@ -155,13 +155,16 @@ def fold_areas(recording, midline: Midline | None = None) -> tuple[np.ndarray, n
     glottal midline; they add up to the recording's area.
 
     Arguments:
-        recording: a `vfjax.Recording` with ``edges`` (contour files) or ``masks`` (video).
+        recording: a `vfjax.Recording` with ``folds`` (per-fold areas, returned as they
+            are), ``edges`` (contour files) or ``masks`` (video).
         midline: the midline to split by; default `glottal_midline` of the recording.
 
     Raises:
         ValueError: for a recording with neither edges nor masks (a bare GAW has no folds).
     """
     edges, masks = recording.edges, recording.masks
+    if recording.folds is not None and midline is None:
+        return recording.folds[:, 0].copy(), recording.folds[:, 1].copy()
     if edges is None and masks is None:
         raise ValueError(
             f"{recording.name}: per-fold areas need the glottis's edges (a contour file) or "
@@ -184,6 +187,14 @@ def fold_areas(recording, midline: Midline | None = None) -> tuple[np.ndarray, n
     share = np.clip(mid - (np.arange(masks.shape[2])[None, :] + 1.0), 0.0, 1.0)
     left_area = (masks * share[None]).sum(axis=(1, 2))
     return left_area, masks.sum(axis=(1, 2)) - left_area
+
+
+def with_fold_areas(recording, midline: Midline | None = None):
+    """A copy of ``recording`` whose ``folds`` hold its per-fold areas (`fold_areas`, split
+    by ``midline`` or the recording's own glottal midline), so that a model with two folds
+    (`vfjax.LeftRightAsymmetry`) is fitted to them."""
+    left, right = fold_areas(recording, midline)
+    return dataclasses.replace(recording, folds=np.stack([left, right], axis=1))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,7 +6,7 @@ import numpy as np
 
 from ._fit import default_warmup
 from .descriptors import fundamental_frequency
-from .integrator import simulate
+from .integrator import simulate, simulated_fold_areas
 from .presets import PRESSURE_KEY, preset
 from .recording import Recording
 from .terms.variability import ClosureJitter
@@ -29,7 +29,9 @@ def demo_recording(
     model's `default_warmup` where that is longer, e.g. with a slow modulation), with Gaussian
     noise of ``noise_px`` pixels (seeded), rounded to whole pixels and clipped at zero. The
     metadata state the subject's sex and the subglottal pressure (as a lab that measured it
-    would), so that a first fit (`vfjax.fit_recording`) holds P_s at the truth.
+    would), so that a first fit (`vfjax.fit_recording`) holds P_s at the truth. The left and
+    right folds' areas (`Recording.folds`) are measured with noise of their own (each half
+    the total's variance), rounded, and add up to the GAW.
 
     Arguments:
         name: the preset (N1-N4).
@@ -53,6 +55,13 @@ def demo_recording(
     rng = np.random.default_rng(seed)
     area = np.asarray(sim.area) + rng.normal(0.0, noise_px, n_frames)
     area = np.clip(np.round(area), 0.0, None)
+    # the left fold's share, measured with its own noise (half the total's variance); the
+    # right fold's is the rest
+    left, _ = simulated_fold_areas(model, sim)
+    noisy = np.asarray(left) + np.random.default_rng([seed, 1]).normal(
+        0.0, noise_px / 2**0.5, n_frames
+    )
+    left = np.clip(np.round(noisy), 0.0, area)
     meta = {
         "sex": "male" if name in ("N1", "N2") else "female",
         PRESSURE_KEY: float(model.params()["P_s"]),
@@ -63,7 +72,14 @@ def demo_recording(
         "hidden_effect": None if effect is None else type(effect).__name__,
         "closure_jitter_rel": jitter,
     }
-    return Recording(area=area, fps=fps, unit="px", metadata=meta, name=f"demo_{name}{name_suffix}")
+    return Recording(
+        area=area,
+        fps=fps,
+        unit="px",
+        metadata=meta,
+        name=f"demo_{name}{name_suffix}",
+        folds=np.stack([left, area - left], axis=1),
+    )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -31,6 +31,11 @@ class Recording:
         masks: optional per-frame glottis masks, shape (frames, height, width): binary, or
             each pixel's share of glottis in [0, 1] (a segmented video's coverage, whose sum
             is the area).
+        folds: optional per-fold areas, shape (frames, 2): the glottal area left and right
+            of the glottal midline in the image, in ``unit``, adding up to ``area`` (within
+            1 % of its peak, or 1 in ``unit``). A fit of a model with two folds
+            (`vfjax.LeftRightAsymmetry`) fits them; `vfjax.asymmetry.fold_areas` reads them
+            first.
     """
 
     area: np.ndarray
@@ -40,6 +45,7 @@ class Recording:
     name: str = "recording"
     edges: np.ndarray | None = None
     masks: np.ndarray | None = None
+    folds: np.ndarray | None = None
 
     def __post_init__(self):
         area = np.asarray(self.area, dtype=float)
@@ -54,10 +60,26 @@ class Recording:
         fps = check_frame_rate(self.fps, f"{self.name}: fps")
         if self.unit not in AREA_UNITS:
             raise ValueError(f"unit must be one of {AREA_UNITS}, got {self.unit!r}")
-        for extra in ("edges", "masks"):
+        for extra in ("edges", "masks", "folds"):
             value = getattr(self, extra)
             if value is not None and len(value) != area.size:
                 raise ValueError(f"{extra} has {len(value)} frames, area has {area.size}")
+        if self.folds is not None:
+            folds = np.asarray(self.folds, dtype=float)
+            if folds.shape != (area.size, 2) or not np.all(np.isfinite(folds)):
+                raise ValueError(
+                    f"folds must hold finite left and right areas, shape ({area.size}, 2), "
+                    f"got shape {folds.shape}"
+                )
+            if np.any(folds < 0):
+                raise ValueError("folds: a fold's area is negative; an area is >= 0")
+            off = np.abs(folds.sum(axis=1) - area).max()
+            if off > max(0.01 * area.max(), 1.0):
+                raise ValueError(
+                    f"folds do not add up to the area: off by up to {off:.3g} {self.unit}"
+                )
+            folds.setflags(write=False)
+            object.__setattr__(self, "folds", folds)
         area.setflags(write=False)
         object.__setattr__(self, "area", area)
         object.__setattr__(self, "fps", fps)
@@ -91,11 +113,13 @@ class Recording:
             area=self.area[sl],
             edges=None if self.edges is None else self.edges[sl],
             masks=None if self.masks is None else self.masks[sl],
+            folds=None if self.folds is None else self.folds[sl],
         )
 
     def resample(self, fps: float) -> "Recording":
         """The GAW at another frame rate (Hz), by linear interpolation over the same span.
-        Per-frame edges and masks do not survive resampling and are dropped."""
+        Per-frame edges, masks and per-fold areas do not survive resampling and are
+        dropped."""
         fps = check_frame_rate(fps, f"{self.name}: resampling fps")
         t = np.arange(int(np.floor(self.duration * fps + 1e-9)) + 1) / fps
         area = np.interp(t, self.time, self.area)

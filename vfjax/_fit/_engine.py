@@ -30,6 +30,7 @@ import optimistix as optx
 from .._sampling import DEFAULT_SUBSTEPS
 from ..model import VocalFoldModel
 from ..recording import Recording
+from ..terms.base import AbstractFoldPair
 from ._options import Polish, Swarm
 from ._polish import polish as _polish_one
 from ._problem import bounds_in_units, default_warmup, fit_sampling, prepare, program_size
@@ -244,12 +245,16 @@ def fit_many(
     """Fit ``params`` of one model structure to many recordings as one batched job.
 
     Every swarm iteration simulates all particles of all fits in one vmapped call, and the
-    polish runs all fits together in one compiled solve. The recordings may differ in length,
-    frame rate and f0: they are padded to the longest one's length bucket. ``model`` is one
-    model for all, or one model per recording (of one structure: the same terms; e.g.
-    several starting points for one recording). Fit i's result depends only on its model,
-    recording, hold, restarts and key ``jax.random.fold_in(key, i)``, not on the rest of the
-    batch.
+    polish runs all fits together in one compiled solve. A model with two folds
+    (`vfjax.LeftRightAsymmetry`) is fitted to the recordings' per-fold areas where they have
+    them (`Recording.folds`): the swarm ranks its points by the total GAW, the polish by the
+    per-fold NMSE, sum((dL)² + (dR)²) / sum(L² + R²), which is then the result's ``nmse``.
+
+    The recordings may differ in length, frame rate and f0: they are padded to the longest
+    one's length bucket. ``model`` is one model for all, or one model per recording (of one
+    structure: the same terms; e.g. several starting points for one recording). Fit i's
+    result depends only on its model, recording, hold, restarts and key
+    ``jax.random.fold_in(key, i)``, not on the rest of the batch.
 
     Arguments:
         model: the starting model(s), with every non-fitted parameter set (e.g.
@@ -313,8 +318,18 @@ def fit_many(
     samplings = [fit_sampling(r, warmup, substeps) for r in recordings]
     sizes = [program_size(s) for s, _ in samplings]
     size = tuple(max(x) for x in zip(*sizes))
+    per_fold = models[0].has(AbstractFoldPair) and all(r.folds is not None for r in recordings)
+    if (
+        models[0].has(AbstractFoldPair)
+        and not per_fold
+        and any(r.folds is not None for r in recordings)
+    ):
+        raise ValueError(
+            "fit_many: some recordings have per-fold areas and some do not; a model with two "
+            "folds fits them per fold: fit the two kinds in separate batches"
+        )
     prepared = [
-        prepare(m, r, params, s, period, bounds, h, size)
+        prepare(m, r, params, s, period, bounds, h, size, per_fold)
         for m, r, (s, period), h in zip(models, recordings, samplings, hold)
     ]
     if len({p.fit_s for p, _, _ in prepared}) > 1:

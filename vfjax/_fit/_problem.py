@@ -22,7 +22,13 @@ import numpy as np
 
 from .._sampling import Sampling, length_bucket
 from ..descriptors import fundamental_frequency
-from ..integrator import SampledGrid, sampled_grid, simulate_frames, window_size
+from ..integrator import (
+    SampledGrid,
+    sampled_grid,
+    simulate_frames,
+    simulated_fold_areas,
+    window_size,
+)
 from ..model import VocalFoldModel
 from ..recording import Recording
 
@@ -90,12 +96,14 @@ class Problem(eqx.Module):
     s_reference: jax.Array  # () starting (or fixed) S
     period: jax.Array  # () T0 estimate (s)
     s_bounds: jax.Array  # (2,) search bounds of S (px/mm²)
+    difference: jax.Array  # (frames bucket,) left minus right fold's area (per-fold fits)
     names: tuple = eqx.field(static=True)  # fitted physical parameters, S excluded
     linear: tuple = eqx.field(static=True)  # per name: linear (True) or log coordinate
     fit_s: bool = eqx.field(static=True)
     n_out: int = eqx.field(static=True)  # frames bucket
     n_rows: int = eqx.field(static=True)  # dense-output rows
     n_shifts: int = eqx.field(static=True)  # shifts the swarm tries (a bucket)
+    per_fold: bool = eqx.field(static=True, default=False)  # fit the folds' areas
 
     def model_at(self, z, log_s=None):
         """The model at coordinates ``z`` (physical parameters first; S at ``log_s``)."""
@@ -121,10 +129,16 @@ class Problem(eqx.Module):
         return simulate_frames(model, self.grid, shift, n_out=self.n_out, n_rows=self.n_rows)
 
     def shape(self, z):
-        """Simulated GAW at S = 1 (clipped at 0, zero on padding) and whether it is valid."""
-        sim = self.simulate(self.model_at(z).set(S=1.0), self.shift(z))
+        """Simulated GAW at S = 1 (clipped at 0, zero on padding) and whether it is valid;
+        for a per-fold fit, the left minus the right fold's area too (else None)."""
+        model = self.model_at(z).set(S=1.0)
+        sim = self.simulate(model, self.shift(z))
         ok = sim.complete
-        return jnp.maximum(jnp.where(ok, sim.area, 0.0), 0.0), ok
+        g = jnp.maximum(jnp.where(ok, sim.area, 0.0), 0.0)
+        if not self.per_fold:
+            return g, None, ok
+        left, right = simulated_fold_areas(model, sim)
+        return g, jnp.where(ok & (sim.area > 0), left - right, 0.0), ok
 
     def projected_scale(self, mg, gg):
         """The S minimising the squared error of a shape g (closed form), kept within its
@@ -179,13 +193,21 @@ class Problem(eqx.Module):
         return self.profile(z_phys)[0]
 
     def residual(self, y):
-        """Residuals whose sum of squares is the NMSE; y = (z..., log S) or z."""
+        """Residuals whose sum of squares is the NMSE; y = (z..., log S) or z.
+
+        A per-fold fit's residuals are those of the total and of the left minus the right
+        fold's area, over the norm of both: their sum of squares is the per-fold NMSE,
+        sum((dL)² + (dR)²) / sum(L² + R²)."""
         z = y[: len(self.names) + 1]
         s = self.s_reference * jnp.exp(y[-1]) if self.fit_s else self.s_reference
-        g, ok = self.shape(z)
-        r = self.counted * (s * g - self.measured) / jnp.sqrt(jnp.sum(self.measured**2))
+        g, diff, ok = self.shape(z)
+        r = self.counted * (s * g - self.measured)
+        norm = jnp.sum(self.measured**2)
+        if self.per_fold:
+            r = jnp.concatenate([r, self.counted * (s * diff - self.difference)])
+            norm = norm + jnp.sum(self.difference**2)
         # outside the valid range: a large, finite residual (the polish rejects the step)
-        return jnp.where(ok, r, self.counted)
+        return jnp.where(ok, r / jnp.sqrt(norm), jnp.tile(self.counted, r.size // self.n_out))
 
     def start(self, z_phys):
         """Swarm point (physical parameters) -> polish point (with its best grid shift and,
@@ -194,6 +216,9 @@ class Problem(eqx.Module):
         y = jnp.concatenate([z_phys, shift[None]])
         if self.fit_s:
             y = jnp.concatenate([y, jnp.log(s / self.s_reference)[None]])
+        if self.per_fold:
+            # the swarm ranks by the total's profile; the polish compares per-fold NMSEs
+            cost = jnp.where(jnp.isfinite(cost), jnp.sum(self.residual(y) ** 2), cost)
         return y, cost
 
     def unpack(self, y) -> tuple[VocalFoldModel, float]:
@@ -286,10 +311,11 @@ def fit_sampling(recording: Recording, warmup: float, substeps: int) -> tuple[Sa
     return sampling, period
 
 
-def prepare(model, recording, params, sampling, period, bounds, held=(), size=None):
+def prepare(model, recording, params, sampling, period, bounds, held=(), size=None, per_fold=False):
     """A `Problem` for fitting ``params`` of ``model`` to ``recording`` and its search box
     (lower, upper) in the search coordinates. ``size``: the program's static sizes
-    (`program_size`; default: those of ``sampling``)."""
+    (`program_size`; default: those of ``sampling``). ``per_fold``: fit the recording's
+    per-fold areas (`Recording.folds`) as well as the total."""
     params = tuple(params)
     model.check_step(sampling.step)
     units = model.parameter_units()
@@ -326,6 +352,11 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
     n_out, n_rows, n_shifts = size or program_size(sampling)
     measured = np.zeros(n_out)
     measured[: recording.n_frames] = recording.area
+    difference = np.zeros(n_out)
+    if per_fold:
+        if recording.folds is None:
+            raise ValueError(f"{recording.name}: a per-fold fit needs the recording's folds")
+        difference[: recording.n_frames] = recording.folds[:, 0] - recording.folds[:, 1]
     problem = Problem(
         model=model,
         grid=sampled_grid(sampling),
@@ -340,11 +371,13 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
         s_reference=jnp.asarray(s_ref),
         period=jnp.asarray(period),
         s_bounds=jnp.asarray(s_bounds),
+        difference=jnp.asarray(difference),
         names=names,
         linear=tuple(_is_linear(model, n, float(model.params()[n]), bounds) for n in names),
         fit_s=fit_s,
         n_out=n_out,
         n_rows=n_rows,
         n_shifts=n_shifts,
+        per_fold=bool(per_fold),
     )
     return problem, jnp.asarray(lo), jnp.asarray(hi)

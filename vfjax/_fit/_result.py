@@ -32,7 +32,8 @@ class FitResult:
         params: fitted parameter values by name, in the model's units (``units``).
         units: unit of each parameter.
         time_shift: fitted sampling delay after the warm-up (s).
-        nmse: normalised squared error of the fitted GAW.
+        nmse: normalised squared error of the fitted GAW; of the two folds' areas for a
+            model with two folds fitted to a recording's per-fold areas (`vfjax.fit_many`).
         sampling: how the fit sampled the model (frame rate, frames, substeps, warm-up,
             time-shift range).
         bounds: the search box of each fitted parameter, [low, high] in its unit.
