@@ -198,7 +198,7 @@ def test_swarm_cost_is_the_best_shift_of_direct_simulations():
         if j / (2 * FPS) > max_shift:
             break
         zz = np.r_[z, j / (2 * FPS) / float(problem.period)]
-        g, ok = shape(problem, zz)
+        g, _, ok = shape(problem, zz)
         assert ok
         g = np.asarray(g)[: rec.n_frames]
         s = np.clip(rec.area @ g / (g @ g), *np.asarray(problem.s_bounds))  # closed form
