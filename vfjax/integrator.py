@@ -157,49 +157,55 @@ class Simulation(eqx.Module):
     dense: DenseOutput
 
 
-def fold_displacements(model: VocalFoldModel, simulation: Simulation) -> tuple[Array, Array]:
-    """The left and right folds' displacements (cm) at the frames of ``simulation`` (a run
-    of ``model``): from a fold pair's states (`vfjax.LeftRightAsymmetry`), read off their
-    cubic Hermite interpolant between the integrator's nodes; both the displacement itself
-    for a model of one symmetric fold."""
-    x = simulation.displacement
+def _folds_at(model: VocalFoldModel, dense: DenseOutput, times, x) -> tuple[Array, Array]:
+    """(x_left, x_right) in cm at ``times`` (s) where the mean displacement is ``x``."""
     pair = model.term(AbstractFoldPair)
     if pair is None:
         return x, x
     slot = [t for t in model.terms if isinstance(t, AbstractStatefulTerm)].index(pair)
-    dense = simulation.dense
     nodes = dense.z[slot]
-    times = jnp.clip(simulation.time, dense.t[0], dense.t[-1])
-    j, theta, span = dense._locate(times)
+    j, theta, span = dense._locate(jnp.clip(times, dense.t[0], dense.t[-1]))
 
     def read(k):
-        y0, r0, y1, r1 = (
-            nodes[j, 2 * k],
-            nodes[j, 2 * k + 1],
-            nodes[j + 1, 2 * k],
-            nodes[j + 1, 2 * k + 1],
-        )
+        # component k with its rate, component k + 1 (the pair's states are (value, rate)
+        # pairs), on the step's cubic Hermite interpolant
+        y0, r0 = nodes[j, 2 * k], nodes[j, 2 * k + 1]
+        y1, r1 = nodes[j + 1, 2 * k], nodes[j + 1, 2 * k + 1]
         return hermite(theta, y0, r0 * span, y1, r1 * span)
 
     state = jnp.stack([read(k) for k in range(nodes.shape[-1] // 2)], axis=-1)
     return pair.fold_displacements(x, state)
 
 
+def left_share(model: VocalFoldModel, dense: DenseOutput, times, x) -> Array:
+    """The left fold's share of the glottal opening at ``times`` (s), where the mean
+    displacement is ``x`` (cm): the part of the opening between the left fold's edge and the
+    glottal midline, ``clip(x_left - x_0, 0, w) / w`` with ``w = x_left + x_right - 2 x_0``;
+    one half where the glottis is closed (and for a model of one symmetric fold)."""
+    left, right = _folds_at(model, dense, times, x)
+    x0 = model.contact_displacement
+    width = (left - x0) + (right - x0)
+    ok = width > 0
+    safe = jnp.where(ok, width, 1.0)
+    return jnp.where(ok, jnp.clip(left - x0, 0.0, safe) / safe, 0.5)
+
+
+def fold_displacements(model: VocalFoldModel, simulation: Simulation) -> tuple[Array, Array]:
+    """The left and right folds' displacements (cm) at the frames of ``simulation`` (a run
+    of ``model``): from a fold pair's states (`vfjax.LeftRightAsymmetry`), read off their
+    cubic Hermite interpolant between the integrator's nodes; both the displacement itself
+    for a model of one symmetric fold."""
+    return _folds_at(model, simulation.dense, simulation.time, simulation.displacement)
+
+
 def simulated_fold_areas(model: VocalFoldModel, simulation: Simulation) -> tuple[Array, Array]:
     """The simulated left and right GAWs (pixels), split as a glottal midline splits a
     measured one (`vfjax.asymmetry.fold_areas`): each fold's share of the glottis is the
-    part of the opening between its edge and the midline,
-    ``clip(x_fold - x_0, 0, x_left + x_right - 2 x_0)`` of ``x_left + x_right - 2 x_0``, so
-    the two add up to the observed GAW (observation terms included). A fold past the
-    midline leaves the whole opening to the other; closed, both are 0 (or half of a
-    negative area each, as `Simulation.area`)."""
-    left, right = fold_displacements(model, simulation)
-    x0 = model.contact_displacement
-    open_l, open_r = left - x0, right - x0
-    width = open_l + open_r
-    ok = width > 0
-    safe = jnp.where(ok, width, 1.0)
-    share = jnp.where(ok, jnp.clip(open_l, 0.0, safe) / safe, 0.5)
+    part of the opening between its edge and the midline (`left_share`), so the two add up
+    to the observed GAW (observation terms included). A fold past the midline leaves the
+    whole opening to the other; closed, both are half of the (zero or negative)
+    `Simulation.area`."""
+    share = left_share(model, simulation.dense, simulation.time, simulation.displacement)
     area = simulation.area
     return area * share, area * (1.0 - share)
 

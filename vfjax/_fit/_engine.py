@@ -247,8 +247,8 @@ def fit_many(
     Every swarm iteration simulates all particles of all fits in one vmapped call, and the
     polish runs all fits together in one compiled solve. A model with two folds
     (`vfjax.LeftRightAsymmetry`) is fitted to the recordings' per-fold areas where they have
-    them (`Recording.folds`): the swarm ranks its points by the total GAW, the polish by the
-    per-fold NMSE, sum((dL)² + (dR)²) / sum(L² + R²), which is then the result's ``nmse``.
+    them (`Recording.folds`): the swarm and the polish minimise the per-fold NMSE,
+    sum((dL)² + (dR)²) / sum(L² + R²), which is then the result's ``nmse``.
 
     The recordings may differ in length, frame rate and f0: they are padded to the longest
     one's length bucket. ``model`` is one model for all, or one model per recording (of one
