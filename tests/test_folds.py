@@ -152,6 +152,12 @@ def test_a_fit_to_per_fold_areas_recovers_a_hidden_asymmetry(tmp_path):
     assert float(found.params["Q"]) - 1.0 == pytest.approx(-0.1, rel=0.2)
     symmetric = _per_fold_nmse(plain.fitted_gaw(), rec.folds)
     assert found.nmse < 0.25 * symmetric
+    # the calibrated test, briefly (4 null recordings: the smallest p is 1/5; the full
+    # test is test_the_asymmetry_test_finds_a_hidden_asymmetry_and_clears_symmetric_folds)
+    brief = vfjax.Calibration(replicates=4, batch=4, interval_replicates=3)
+    test = vfjax.diagnosis.asymmetry_test(plain, rec, alpha=0.2, calibration=brief)
+    assert test.p_value == pytest.approx(1 / 5) and test.Q == pytest.approx(0.9, abs=0.02)
+    assert test.interval[0] < test.Q < test.interval[1] and test.fall > 0.9
     # saved and read back, the model keeps its two folds
     found.to_json(tmp_path / "fit.json")
     again = vfjax.FitResult.from_json(tmp_path / "fit.json")
@@ -171,3 +177,25 @@ def test_per_fold_areas_must_add_up_to_the_area():
         vfjax.Recording(area, 4000.0, folds=np.stack([area + 1, -np.ones(4)], axis=1))
     with pytest.raises(ValueError, match="shape"):
         vfjax.Recording(area, 4000.0, folds=area)
+
+
+@pytest.mark.slow
+def test_the_asymmetry_test_finds_a_hidden_asymmetry_and_clears_symmetric_folds():
+    """The calibrated test on per-fold areas (N1, 1 px noise; 19 null recordings, alpha
+    0.05, whose smallest p-value is 1/20): a hidden Q = 0.9 is needed, its interval holds the
+    truth and excludes 1, and the refit removes most of the per-fold misfit; on symmetric
+    folds (no hidden effect) asymmetry is not needed."""
+    level = {"alpha": 0.05, "calibration": vfjax.Calibration(replicates=19, interval_replicates=9)}
+    rec = demo_recording("N1", noise_px=1.0, effect=LeftRightAsymmetry(Q=0.9))
+    plain = vfjax.fit(vfjax.preset("N1"), rec, params=("S", "K", "C_f"), progress=False)
+    found = vfjax.diagnosis.asymmetry_test(plain, rec, **level)
+    assert found.needed and found.p_value == pytest.approx(1 / 20), found.words
+    assert found.interval[0] <= 0.9 <= found.interval[1] < 1.0
+    assert found.Q == pytest.approx(0.9, abs=0.02) and found.fall > 0.9
+    assert found.refit.model.has(LeftRightAsymmetry) and "is needed" in found.words
+    rec = demo_recording("N1", noise_px=1.0)
+    plain = vfjax.fit(vfjax.preset("N1"), rec, params=("S", "K", "C_f"), progress=False)
+    cleared = vfjax.diagnosis.asymmetry_test(plain, rec, **level)
+    assert not cleared.needed and cleared.p_value > 0.05, cleared.words
+    with pytest.raises(ValueError, match="two folds already"):
+        vfjax.diagnosis.asymmetry_test(found.refit, rec)

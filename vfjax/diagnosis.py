@@ -7,6 +7,7 @@ method is described in the implementation's package, ``vfjax._diagnosis``.
 
 from ._diagnosis import (
     DEFAULT_CANDIDATES,
+    AsymmetryTest,
     Calibrated,
     Candidate,
     Criteria,
@@ -15,10 +16,12 @@ from ._diagnosis import (
     EffectScore,
     RefitPlan,
     Variability,
+    asymmetry_test,
     calibrate,
     default_candidates,
     diagnose,
     extend,
+    per_fold_nmse,
     refit_each,
     refit_with,
     score_tests,
@@ -26,6 +29,9 @@ from ._diagnosis import (
 
 __all__ = [
     "DEFAULT_CANDIDATES",
+    "AsymmetryTest",
+    "asymmetry_test",
+    "per_fold_nmse",
     "Calibrated",
     "Candidate",
     "Criteria",

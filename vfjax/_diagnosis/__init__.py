@@ -60,12 +60,14 @@ effect is needed, `Diagnosis.verdict` says so in words, with where the model fai
 - ``_refits``: the refits' starts, `refit_each`, the confirming refit;
 - ``_verdict``: `Diagnosis`, `EffectRefit` and the verdict in words;
 - ``_diagnose``: `diagnose` and `extend`;
-- ``_investigate``: `investigate` (fit, diagnose, extend, repeat).
+- ``_investigate``: `investigate` (fit, diagnose, extend, repeat);
+- ``_folds``: `asymmetry_test`, left-right asymmetry tested on each fold's area.
 """
 
 from ._calibration import Calibrated, Calibration, Variability, calibrate
 from ._candidates import DEFAULT_CANDIDATES, Candidate, default_candidates
 from ._diagnose import diagnose, extend
+from ._folds import AsymmetryTest, asymmetry_test, per_fold_nmse
 from ._investigate import EXPLAINED_SHARE, Investigation, Outcome, Round, extend_from, investigate
 from ._options import Criteria, RefitPlan
 from ._refits import refit_each, refit_with
@@ -73,6 +75,9 @@ from ._score import EffectScore, score_tests
 from ._verdict import Diagnosis, EffectRefit
 
 __all__ = [
+    "AsymmetryTest",
+    "asymmetry_test",
+    "per_fold_nmse",
     "DEFAULT_CANDIDATES",
     "Calibrated",
     "Calibration",
