@@ -152,12 +152,6 @@ def test_a_fit_to_per_fold_areas_recovers_a_hidden_asymmetry(tmp_path):
     assert float(found.params["Q"]) - 1.0 == pytest.approx(-0.1, rel=0.2)
     symmetric = _per_fold_nmse(plain.fitted_gaw(), rec.folds)
     assert found.nmse < 0.25 * symmetric
-    # the calibrated test, briefly (4 null recordings: the smallest p is 1/5; the full
-    # test is test_the_asymmetry_test_finds_a_hidden_asymmetry_and_clears_symmetric_folds)
-    brief = vfjax.Calibration(replicates=4, batch=4, interval_replicates=3)
-    test = vfjax.diagnosis.asymmetry_test(plain, rec, alpha=0.2, calibration=brief)
-    assert test.p_value == pytest.approx(1 / 5) and test.Q == pytest.approx(0.9, abs=0.02)
-    assert test.interval[0] < test.Q < test.interval[1] and test.fall > 0.9
     # saved and read back, the model keeps its two folds
     found.to_json(tmp_path / "fit.json")
     again = vfjax.FitResult.from_json(tmp_path / "fit.json")
@@ -179,7 +173,7 @@ def test_per_fold_areas_must_add_up_to_the_area():
         vfjax.Recording(area, 4000.0, folds=area)
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # 100 s: the default suite stays under its 10 minutes on 2 cores
 def test_the_asymmetry_test_finds_a_hidden_asymmetry_and_clears_symmetric_folds():
     """The calibrated test on per-fold areas (N1, 1 px noise; 19 null recordings, alpha
     0.05, whose smallest p-value is 1/20): a hidden Q = 0.9 is needed, its interval holds the
