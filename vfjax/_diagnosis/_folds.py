@@ -107,13 +107,12 @@ def per_fold_nmse(left, right, folds) -> float:
     return float(np.sum(err) / np.sum(folds**2))
 
 
-def _fold_gaws(result: FitResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The fit's total, left and right GAWs on its frames (clipped at zero)."""
+def _fold_gaws(result: FitResult) -> tuple[np.ndarray, np.ndarray]:
+    """The fit's total and left GAWs on its frames (clipped at zero)."""
     sim = result.simulate()
-    left, right = (np.asarray(a) for a in simulated_fold_areas(result.model, sim))
+    left, _ = simulated_fold_areas(result.model, sim)
     total = np.clip(np.asarray(sim.area), 0.0, None)
-    ok = total > 0
-    return total, np.where(ok, left, 0.0), np.where(ok, right, 0.0)
+    return total, np.where(total > 0, np.asarray(left), 0.0)
 
 
 def _noisy(recording, total, left, sd_total, sd_left, rng, name) -> Recording:
@@ -194,7 +193,7 @@ def asymmetry_test(
         dataclasses.replace(_REFIT_SWARM, iterations=_RECORDING_ITERATIONS),
     )
     fall = 1.0 - refit.nmse / symmetric
-    two_total, two_left, _ = _fold_gaws(refit)
+    two_total, two_left = _fold_gaws(refit)
     sd_total = noise_level(recording.area, two_total)
     sd_left = noise_level(folds[:, 0], two_left)
     rng = np.random.default_rng(calibration.seed)
@@ -224,7 +223,6 @@ def asymmetry_test(
         beyond = sum(f >= fall for f in falls)
         if (1 + beyond) / (1 + calibration.replicates) > alpha:
             break  # no more null recordings can bring p to alpha
-    beyond = sum(f >= fall for f in falls)
     p_value = (1 + beyond) / (1 + len(falls))
 
     # Q's interval: recordings of the two folds' fit, refitted from it
@@ -242,8 +240,10 @@ def asymmetry_test(
     qs = np.array([f.params["Q"] for f in boot if np.isfinite(f.nmse)])
     q_hat = float(refit.params["Q"])
     # a normal interval about the estimate, as the catalogue's effects get
-    half = stats.norm.ppf(0.5 + calibration.interval / 2) * np.std(qs, ddof=1)
-    interval = (q_hat - half, q_hat + half) if qs.size >= 2 else (float("nan"),) * 2
+    interval = (float("nan"),) * 2
+    if qs.size >= 2:
+        half = stats.norm.ppf(0.5 + calibration.interval / 2) * np.std(qs, ddof=1)
+        interval = (q_hat - half, q_hat + half)
     return AsymmetryTest(
         symmetric_nmse=symmetric,
         nmse=refit.nmse,

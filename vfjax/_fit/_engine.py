@@ -318,16 +318,14 @@ def fit_many(
     samplings = [fit_sampling(r, warmup, substeps) for r in recordings]
     sizes = [program_size(s) for s, _ in samplings]
     size = tuple(max(x) for x in zip(*sizes))
-    per_fold = models[0].has(AbstractFoldPair) and all(r.folds is not None for r in recordings)
-    if (
-        models[0].has(AbstractFoldPair)
-        and not per_fold
-        and any(r.folds is not None for r in recordings)
-    ):
+    with_folds = [r.folds is not None for r in recordings]
+    two_folds = models[0].has(AbstractFoldPair)
+    if two_folds and any(with_folds) and not all(with_folds):
         raise ValueError(
             "fit_many: some recordings have per-fold areas and some do not; a model with two "
             "folds fits them per fold: fit the two kinds in separate batches"
         )
+    per_fold = two_folds and all(with_folds)
     prepared = [
         prepare(m, r, params, s, period, bounds, h, size, per_fold)
         for m, r, (s, period), h in zip(models, recordings, samplings, hold)

@@ -27,7 +27,6 @@ from ..integrator import (
     left_share,
     sampled_grid,
     simulate_frames,
-    simulated_fold_areas,
     window_size,
 )
 from ..model import VocalFoldModel
@@ -138,8 +137,9 @@ class Problem(eqx.Module):
         g = jnp.maximum(jnp.where(ok, sim.area, 0.0), 0.0)
         if not self.per_fold:
             return g, None, ok
-        left, right = simulated_fold_areas(model, sim)
-        return g, jnp.where(ok & (sim.area > 0), left - right, 0.0), ok
+        # left minus right, as the swarm's profile reads it
+        share = left_share(model, sim.dense, sim.time, sim.displacement)
+        return g, g * (2.0 * share - 1.0), ok
 
     def projected_scale(self, mg, gg):
         """The S minimising the squared error of a shape g (closed form), kept within its

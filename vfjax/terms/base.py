@@ -187,6 +187,10 @@ class AbstractFoldPair(AbstractStatefulTerm):
     force) into the mean's acceleration and its states' rates.
     """
 
+    # The states are (value, rate) pairs along their last axis, (d_1, dd_1/dt, d_2, ...):
+    # between the integrator's nodes they are read on cubic Hermite interpolants
+    # (`vfjax.fold_displacements`), as the displacement is.
+
     @abc.abstractmethod
     def fold_rates(
         self, ctx: Context, state: PyTree[Array], force: Callable[[Array, Array], Array]
