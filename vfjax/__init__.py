@@ -22,6 +22,7 @@ from . import (  # noqa: E402
     video,
     workflow,
 )
+from ._cohort import CohortEntry, CohortOptions, cohort  # noqa: E402
 from ._diagnosis import (  # noqa: E402
     Calibration,
     Candidate,
@@ -47,6 +48,7 @@ from ._fit import (  # noqa: E402
     fit,
     fit_many,
     fit_recording,
+    fit_recordings,
     search_range,
 )
 from ._sampling import Sampling, length_bucket  # noqa: E402
@@ -97,6 +99,7 @@ from .terms import (  # noqa: E402
 __version__ = "0.1.0"
 
 __all__ = [
+    "cohort",
     "asymmetry",
     "compare",
     "descriptors",
@@ -145,6 +148,8 @@ __all__ = [
     "VocalFoldModel",
     "Candidate",
     "Calibration",
+    "CohortEntry",
+    "CohortOptions",
     "Criteria",
     "RefitPlan",
     "Diagnosis",
@@ -155,6 +160,7 @@ __all__ = [
     "fit",
     "fit_many",
     "fit_recording",
+    "fit_recordings",
     "first_fit_bounds",
     "first_fit_parameters",
     "DEFAULT_PARAMS",

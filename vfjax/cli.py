@@ -1,5 +1,5 @@
 """Command line: ``vfjax run`` (the main job on embedded data), ``fit``, ``diagnose``,
-``extract`` and ``simulate``."""
+``cohort``, ``extract`` and ``simulate``."""
 
 import argparse
 import dataclasses
@@ -13,6 +13,13 @@ import time
 import numpy as np
 
 from . import __version__
+from ._runtime import (  # noqa: F401  (the command line's settings, importable from here)
+    CACHE_MAX_BYTES,
+    CACHE_MIN_COMPILE_S,
+    cache_folder,
+    use_compilation_cache,
+    use_cpu_cores,
+)
 
 
 def _simulate_preset(name, fps, n_frames, t_start):
@@ -266,6 +273,41 @@ def cmd_diagnose(args) -> int:
     return _report_failure(study.final, f"{rec.name}: the final fit")
 
 
+def cmd_cohort(args) -> int:
+    """Fit and diagnose every recording of a folder or manifest; resumable."""
+    from ._cohort import CohortOptions, cohort
+    from ._diagnosis import Calibration, Criteria
+    from ._fit import Swarm
+
+    options = CohortOptions(
+        diagnose=not args.fits_only,
+        rounds=args.rounds,
+        restarts=args.restarts,
+        swarm=Swarm(iterations=args.iterations),
+        criteria=Criteria(alpha=args.alpha),
+        calibration=Calibration(replicates=args.replicates, seed=args.seed),
+        batch=args.batch,
+        seed=args.seed,
+    )
+    frame = cohort(
+        args.input,
+        args.out,
+        options,
+        fps=args.fps,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        retry_failed=args.retry_failed,
+        progress=True,
+    )
+    failed = frame[frame["status"] != "done"]
+    out = pathlib.Path(args.out)
+    print(f"{len(frame)} recordings: {len(frame) - len(failed)} done, {len(failed)} failed")
+    for _, row in failed.iterrows():
+        print(f"  {row['recording']}: {row['reason']}", file=sys.stderr)
+    print(f"wrote {out / 'cohort.csv'}, {out / 'cohort.parquet'} and {out / 'report.md'}")
+    return 0
+
+
 def cmd_fit(args) -> int:
     """Fit the paper's model to a recording (table + JSON sidecar, or a contour file)."""
     import matplotlib
@@ -382,66 +424,6 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def cache_folder() -> pathlib.Path:
-    """Where the command line keeps JAX's persistent compilation cache: ``$VFJAX_CACHE_DIR``,
-    else ``vfjax/jax`` in the user's cache folder (``$XDG_CACHE_HOME``, else ``~/.cache``)."""
-    if os.environ.get("VFJAX_CACHE_DIR"):
-        return pathlib.Path(os.environ["VFJAX_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache"
-    return pathlib.Path(base) / "vfjax" / "jax"
-
-
-#: Most bytes the command line's compilation cache holds; past it the programs used least
-#: recently are removed. A bounded cache also makes JAX lock the folder for every read and
-#: write, so processes running side by side never read a program half written.
-CACHE_MAX_BYTES = 2 * 1024**3
-#: Programs that compile faster than this (s) are not cached (small array operations).
-CACHE_MIN_COMPILE_S = 0.2
-
-
-def use_compilation_cache(folder=None) -> pathlib.Path | None:
-    """Turn on JAX's persistent compilation cache in ``folder`` (default `cache_folder`), so
-    that a program compiled once (a fit of a model structure) is loaded, not compiled again,
-    by later processes, up to `CACHE_MAX_BYTES`. A folder that cannot be written leaves the
-    cache off, with one warning on stderr. Returns the folder in use, or None."""
-    import tempfile
-
-    import jax
-
-    folder = pathlib.Path(folder) if folder is not None else cache_folder()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".probe-"):
-            pass
-    except OSError as err:
-        reason = err.strerror or err
-        print(
-            f"vfjax: warning: compilation cache off: cannot write {folder} ({reason})",
-            file=sys.stderr,
-        )
-        return None
-    jax.config.update("jax_compilation_cache_dir", str(folder))
-    jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", CACHE_MIN_COMPILE_S)
-    return folder
-
-
-def use_cpu_cores(cores: int | None = None) -> int:
-    """Give JAX's CPU backend one device per core (``cores``, default every core of the
-    machine), so that the fits split each swarm's particles among them. Must run before JAX
-    computes anything; afterwards it changes nothing and returns the devices JAX has."""
-    import jax
-
-    cores = (os.cpu_count() or 1) if cores is None else int(cores)
-    if cores < 1:
-        raise ValueError(f"cores must be >= 1, got {cores}")
-    try:
-        jax.config.update("jax_num_cpu_devices", cores)
-    except RuntimeError:  # the backend is already running
-        return len(jax.devices())
-    return cores
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="vfjax",
@@ -542,6 +524,63 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     dg.set_defaults(func=cmd_diagnose)
 
+    co = sub.add_parser(
+        "cohort",
+        help="fit and diagnose every recording of a folder or manifest (resumable)",
+        description="Fit and diagnose every recording of a folder or manifest. Each "
+        "recording's results are written as soon as they are complete; a rerun with the "
+        "same --out skips what is done and redoes what changed.",
+    )
+    co.add_argument(
+        "input",
+        help="a folder (GAW tables with .json sidecars, contour .txt files, videos) or a "
+        "manifest CSV (path, optional fps, grouping columns)",
+    )
+    co.add_argument("--out", default="vfjax_cohort", help="output folder (default: %(default)s)")
+    co.add_argument("--fps", type=float, help="frame rate, Hz, for files that state none")
+    co.add_argument("--fits-only", action="store_true", help="first fits only, no diagnosis")
+    co.add_argument(
+        "--workers",
+        type=int,
+        help="run on a local Dask cluster of this many worker processes",
+    )
+    co.add_argument(
+        "--scheduler", help="address of a running Dask scheduler (e.g. tcp://host:8786)"
+    )
+    co.add_argument(
+        "--batch",
+        type=int,
+        default=16,
+        help="most recordings in one batched fit (default: %(default)s)",
+    )
+    co.add_argument(
+        "--restarts",
+        type=int,
+        default=4,
+        help="independent searches of each first fit (default: %(default)s)",
+    )
+    co.add_argument("--rounds", type=int, default=2, help="most effects to add (default: 2)")
+    co.add_argument(
+        "--alpha",
+        type=float,
+        default=0.01,
+        help="family-wise significance level over the candidates (default: %(default)s)",
+    )
+    co.add_argument(
+        "--replicates",
+        type=int,
+        default=111,
+        help="most null recordings per diagnosis (default: %(default)s)",
+    )
+    co.add_argument("--seed", type=int, default=0, help="PRNG seed (default: %(default)s)")
+    co.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+    co.add_argument(
+        "--retry-failed",
+        action="store_true",
+        help="redo recordings that failed in an earlier run although their files did not change",
+    )
+    co.set_defaults(func=cmd_cohort)
+
     ex = sub.add_parser("extract", help="glottal area waveform from a high-speed video")
     ex.add_argument("video", help=".tif/.tiff, .npy, .cih/.cihx (+.mraw), .avi or .mp4")
     ex.add_argument("-o", "--output", default="recording.csv", help="CSV path (+ .json, .png)")
@@ -631,7 +670,7 @@ def main(argv=None) -> int:
     except SimulationError as err:
         print(f"vfjax: simulation failed: {err}", file=sys.stderr)
         return 1
-    except (ValueError, TypeError, OSError) as err:
+    except (ValueError, TypeError, OSError, ImportError) as err:
         print(f"vfjax: error: {err}", file=sys.stderr)
         return 2
     finally:

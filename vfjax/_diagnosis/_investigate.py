@@ -201,6 +201,7 @@ def investigate(
     calibration: Calibration = DEFAULT_CALIBRATION,
     swarm: Swarm = DEFAULT_SWARM,
     restarts: int = FIRST_FIT_RESTARTS,
+    first: FitResult | None = None,
     progress: bool = False,
 ) -> Investigation:
     """Fit the recording (`vfjax.fit_recording`), diagnose, add the best effect, refit, and
@@ -219,13 +220,24 @@ def investigate(
         calibration: the diagnoses' calibration on null recordings (`Calibration`).
         swarm: the first fit's swarm; each extension runs as many iterations.
         restarts: independent searches of the first fit.
+        first: the first fit, made already (e.g. by `vfjax.fit_recordings` of many
+            recordings in one batch); ``model``, ``params`` and ``restarts`` are then unused.
         progress: print what happens.
     """
     if not isinstance(plan, RefitPlan):
         raise TypeError(f"plan must be a vfjax.RefitPlan, got {type(plan).__name__}")
-    current = fit_recording(
-        recording, model, params, restarts=restarts, swarm=swarm, progress=progress
-    )
+    if first is None:
+        current = fit_recording(
+            recording, model, params, restarts=restarts, swarm=swarm, progress=progress
+        )
+    elif not isinstance(first, FitResult):
+        raise TypeError(f"first must be a vfjax.FitResult, got {type(first).__name__}")
+    elif first.recording_name != recording.name:
+        raise ValueError(
+            f"first is a fit of {first.recording_name!r}, not of the recording {recording.name!r}"
+        )
+    else:
+        current = first
     if progress:
         print(f"fit: NMSE {current.nmse:.4g}")
     done = []

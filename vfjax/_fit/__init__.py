@@ -13,7 +13,7 @@ time_shift``, where the time shift is a fitted, differentiable parameter in [0, 
 - ``_result``: `FitResult` and its status;
 - ``_engine``: `fit_many` and `fit`, which run every fit as a batch of compiled programs;
 - ``_first``: `fit_recording`, a recording's first fit (free pressure, a box that reaches the
-  model's regimes, restarts).
+  model's regimes, restarts), and `fit_recordings`, many first fits as one batch.
 
 Cost: NMSE = sum((A_exp - A_sim)²) / sum(A_exp²) (`vfjax.nmse`). The simulated GAW is clipped
 at zero area before it is compared: a camera sees no negative area.
@@ -26,6 +26,7 @@ from ._first import (
     first_fit_bounds,
     first_fit_parameters,
     fit_recording,
+    fit_recordings,
 )
 from ._options import Polish, Swarm
 from ._problem import DEFAULT_FACTORS, LINEAR, WARMUP, default_warmup, search_range
@@ -48,6 +49,7 @@ __all__ = [
     "first_fit_parameters",
     "fit_many",
     "fit_recording",
+    "fit_recordings",
     "fitted_area",
     "search_range",
 ]

@@ -230,7 +230,7 @@ def fit_many(
     recordings: Sequence[Recording],
     params: Sequence[str] = DEFAULT_PARAMS,
     *,
-    bounds: dict | None = None,
+    bounds: dict | Sequence[dict | None] | None = None,
     swarm: Swarm = DEFAULT_SWARM,
     polish: Polish | None = DEFAULT_POLISH,
     warmup: float | None = None,
@@ -262,17 +262,21 @@ def fit_many(
             of the search.
         recordings: the measured GAWs (`vfjax.Recording`).
         params: names of the parameters to fit (the paper: S, K, C_f; t_c and P_s optional).
-        bounds: ``{name: (low, high)}`` in the parameter's unit; defaults:
-            `DEFAULT_FACTORS` times the starting value, or `search_range`. They bound the
-            swarm's search (and the projected S); the polish is a local, unconstrained
-            refinement from the swarm's best.
+        bounds: ``{name: (low, high)}`` in the parameter's unit, for every fit, or a list
+            of such dicts (or None), one per recording; defaults: `DEFAULT_FACTORS` times
+            the starting value, or `search_range`. They bound the swarm's search (and the
+            projected S); the polish is a local, unconstrained refinement from the swarm's
+            best.
         swarm: the global stage's settings (`Swarm`: particles, iterations, ...).
         polish: the local stage (`Polish`: an optimistix least-squares solver and its step
             budget); None: the swarm's best point.
         warmup: simulated time before the first frame (s); default: the longest
             `default_warmup` of the models.
         substeps: RK4 steps per frame.
-        key: `jax.random` key; the same key gives the same results. Default: key(0).
+        key: `jax.random` key; the same key gives the same results. Default: key(0). Or
+            an array of keys, one per recording (shape ``(len(recordings),)``): fit i then
+            draws from ``key[i]`` in place of ``fold_in(key, i)``, so that a recording's
+            fit is the same in any batch and at any position in it.
         hold: for each fit, names among ``params`` (S excepted) that stay at that model's
             value: fits of different parameter subsets of one model then share one batch and
             one program (the diagnosis refits every candidate effect this way). A held
@@ -282,8 +286,8 @@ def fit_many(
             swarm iterations and after the polish (best NMSE over the batch).
         restarts: independent searches (swarm and polish) per recording, all in the batch;
             each recording keeps its best (`FitResult.restart_nmse` lists them all).
-            Restart 0 of fit i uses the key ``fold_in(key, i)``, restart r > 0
-            ``fold_in(fold_in(key, i), r)``.
+            Restart 0 of fit i uses the key ``fold_in(key, i)`` (or ``key[i]``), restart
+            r > 0 ``fold_in`` of that key and r.
         min_batch: pad the batch to at least this many fits (skipped; they cost no
             simulation), so that jobs of different sizes up to it share their programs.
 
@@ -308,6 +312,15 @@ def fit_many(
     if len(hold) != len(models):
         raise ValueError(f"got {len(hold)} hold lists for {len(recordings)} recordings")
     key = jax.random.key(0) if key is None else key
+    per_fit_keys = jnp.ndim(key) == 1
+    if per_fit_keys and len(key) != len(recordings):
+        raise ValueError(f"got {len(key)} keys for {len(recordings)} recordings")
+    if isinstance(bounds, Sequence):
+        bounds = list(bounds)
+        if len(bounds) != len(recordings):
+            raise ValueError(f"got {len(bounds)} bounds for {len(recordings)} recordings")
+    else:
+        bounds = [bounds] * len(recordings)
     if isinstance(restarts, bool) or not isinstance(restarts, int) or restarts < 1:
         raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
     warmup = max(default_warmup(m) for m in models) if warmup is None else float(warmup)
@@ -327,8 +340,8 @@ def fit_many(
         )
     per_fold = two_folds and all(with_folds)
     prepared = [
-        prepare(m, r, params, s, period, bounds, h, size, per_fold)
-        for m, r, (s, period), h in zip(models, recordings, samplings, hold)
+        prepare(m, r, params, s, period, b, h, size, per_fold)
+        for m, r, (s, period), h, b in zip(models, recordings, samplings, hold, bounds)
     ]
     if len({p.fit_s for p, _, _ in prepared}) > 1:
         raise ValueError("fit_many: S is fitted for pixel recordings only; do not mix units")
@@ -347,7 +360,7 @@ def fit_many(
     lowers = jnp.stack([lo for lo, _ in boxes] + [boxes[0][0]] * pad)
     uppers = jnp.stack([hi for _, hi in boxes] + [boxes[0][1]] * pad)
     # fit i's keys depend on i (and the restart) alone, not on the batch's size
-    keys = [jax.random.fold_in(key, i) for i in range(len(recordings))]
+    keys = [key[i] if per_fit_keys else jax.random.fold_in(key, i) for i in range(len(recordings))]
     keys = [k if r == 0 else jax.random.fold_in(k, r) for k in keys for r in range(restarts)]
     keys = jnp.stack(keys + [keys[0]] * pad)
     program = swarm.program()

@@ -10,10 +10,12 @@ recordings, the first fit's NMSE falls by up to 10x when P_s is searched with th
 
 from collections.abc import Sequence
 
+import jax
+
 from ..model import VocalFoldModel
 from ..presets import PRESSURE_KEY, initial_model
 from ..recording import Recording
-from ._engine import fit
+from ._engine import fit, fit_many
 from ._result import FitResult
 
 #: The subglottal pressures (dyne/cm²) a first fit searches when the recording states none:
@@ -91,3 +93,56 @@ def fit_recording(
     params = first_fit_parameters(recording, model) if params is None else tuple(params)
     box = {**first_fit_bounds(model, params), **(bounds or {})}
     return fit(model, recording, params, bounds=box, restarts=restarts, **options)
+
+
+def fit_recordings(
+    recordings: Sequence[Recording],
+    models: Sequence[VocalFoldModel] | None = None,
+    params: Sequence[str] | None = None,
+    *,
+    restarts: int = FIRST_FIT_RESTARTS,
+    bounds: dict | None = None,
+    key=None,
+    **options,
+) -> list[FitResult]:
+    """`fit_recording` of many recordings as one batched job (`vfjax.fit_many`): each
+    recording's first fit, from its own starting model and in its own box, with the same
+    random draws as `fit_recording` of it alone (``fold_in(key, 0)``), so that its result
+    does not depend on the batch (to rounding).
+
+    Arguments:
+        recordings: the measured GAWs; they must leave the same parameters free (the same
+            unit, and each stating its subglottal pressure or none stating it), as
+            `first_fit_parameters` decides.
+        models: one starting model per recording, of one structure (default:
+            `vfjax.initial_model` of each).
+        params: the parameters to fit (default: `first_fit_parameters`).
+        restarts: independent searches per recording; the best is kept.
+        bounds: ``{name: (low, high)}`` in the parameters' units, replacing
+            `first_fit_bounds`' entries for every recording.
+        key: `jax.random` key (default: key(0)).
+        options: the rest of `vfjax.fit_many`'s options (``swarm``, ``polish``, ``warmup``,
+            ``substeps``, ``progress``, ``callback``, ``min_batch``).
+    """
+    recordings = list(recordings)
+    for r in recordings:
+        if not isinstance(r, Recording):
+            raise TypeError(f"recording must be a vfjax.Recording, got {type(r).__name__}")
+    models = [initial_model(r) for r in recordings] if models is None else list(models)
+    if len(models) != len(recordings):
+        raise ValueError(f"got {len(models)} models for {len(recordings)} recordings")
+    if params is None:
+        free = {first_fit_parameters(r, m) for r, m in zip(recordings, models)}
+        if len(free) > 1:
+            raise ValueError(
+                "fit_recordings: the recordings leave different parameters free "
+                f"({sorted(free)}); fit each kind in its own batch"
+            )
+        (params,) = free
+    params = tuple(params)
+    boxes = [{**first_fit_bounds(m, params), **(bounds or {})} for m in models]
+    key = jax.random.key(0) if key is None else key
+    keys = jax.numpy.stack([jax.random.fold_in(key, 0)] * len(recordings))
+    return fit_many(
+        models, recordings, params, bounds=boxes, restarts=restarts, key=keys, **options
+    )
