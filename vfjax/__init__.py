@@ -22,7 +22,7 @@ from . import (  # noqa: E402
     video,
     workflow,
 )
-from ._cohort import CohortEntry, CohortOptions, cohort  # noqa: E402
+from ._cohort import CohortEntry, CohortOptions, cohort, find_entries, read_manifest  # noqa: E402
 from ._diagnosis import (  # noqa: E402
     Calibration,
     Candidate,
@@ -100,6 +100,8 @@ __version__ = "0.1.0"
 
 __all__ = [
     "cohort",
+    "find_entries",
+    "read_manifest",
     "asymmetry",
     "compare",
     "descriptors",

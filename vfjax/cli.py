@@ -283,7 +283,7 @@ def cmd_cohort(args) -> int:
         diagnose=not args.fits_only,
         rounds=args.rounds,
         restarts=args.restarts,
-        swarm=Swarm(iterations=args.iterations),
+        swarm=Swarm(size=args.particles, iterations=args.iterations),
         criteria=Criteria(alpha=args.alpha),
         calibration=Calibration(replicates=args.replicates, seed=args.seed),
         batch=args.batch,
@@ -574,6 +574,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     co.add_argument("--seed", type=int, default=0, help="PRNG seed (default: %(default)s)")
     co.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+    co.add_argument("--particles", type=int, default=48, help="PSO particles per fit")
     co.add_argument(
         "--retry-failed",
         action="store_true",

@@ -164,6 +164,8 @@ def read_manifest(path, fps: float | None = None) -> list[CohortEntry]:
 def _check_unique(entries, where) -> None:
     seen = {}
     for e in entries:
+        if e.id in seen and seen[e.id].path.resolve() == e.path.resolve():
+            raise ValueError(f"{where}: lists {e.path} twice")
         if e.id in seen:
             raise ValueError(
                 f"{where}: {seen[e.id].path} and {e.path} have the same name in the cohort "

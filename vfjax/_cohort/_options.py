@@ -2,7 +2,7 @@
 
 import equinox as eqx
 
-from .._diagnosis._calibration import DEFAULT_CALIBRATION, Calibration
+from .._diagnosis._calibration import DEFAULT_CALIBRATION, Calibration, check_reachable
 from .._diagnosis._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
 from .._fit import FIRST_FIT_RESTARTS, Swarm
 from .._fit._engine import DEFAULT_SWARM
@@ -19,6 +19,8 @@ class CohortOptions(eqx.Module):
         rounds: most effects added per recording.
         restarts: independent searches of each first fit.
         swarm: the first fits' swarm; each extension runs as many iterations.
+        candidates: the candidate effects (term classes or instances; default: the
+            catalogue), see `vfjax.diagnose`.
         criteria: when an effect is needed (`vfjax.Criteria`).
         plan: the diagnoses' refits (`vfjax.RefitPlan`).
         calibration: the diagnoses' null recordings (`vfjax.Calibration`).
@@ -32,6 +34,9 @@ class CohortOptions(eqx.Module):
     rounds: int = eqx.field(default=2, converter=int)
     restarts: int = eqx.field(default=FIRST_FIT_RESTARTS, converter=int)
     swarm: Swarm = DEFAULT_SWARM
+    candidates: tuple | None = eqx.field(
+        default=None, converter=lambda c: None if c is None else tuple(c)
+    )
     criteria: Criteria = DEFAULT_CRITERIA
     plan: RefitPlan = DEFAULT_PLAN
     calibration: Calibration = DEFAULT_CALIBRATION
@@ -55,6 +60,10 @@ class CohortOptions(eqx.Module):
                     f"CohortOptions: {name} must be a vfjax.{kind.__name__}, got "
                     f"{type(getattr(self, name)).__name__}"
                 )
+        if self.candidates == ():
+            raise ValueError("CohortOptions: candidates is empty (None: the catalogue)")
+        if self.diagnose:
+            check_reachable(self.criteria.alpha, self.calibration)
 
 
 #: The default `CohortOptions`.

@@ -30,6 +30,8 @@ LEADING_COLUMNS = (
     "effects needed",
 )
 TRAILING_COLUMNS = ("conclusion", "seconds")
+#: Counts (missing where a recording could not be read).
+INTEGER_COLUMNS = ("frames", "cycles")
 
 
 def pandas():
@@ -58,6 +60,9 @@ def table(rows: list[dict], groups: list[str]):
     for column in ("reason", "outcome", "effects needed", "conclusion", *groups):
         if column in frame:
             frame[column] = frame[column].fillna("").astype(str)
+    for column in INTEGER_COLUMNS:
+        if column in frame:
+            frame[column] = frame[column].astype("Int64")
     return frame
 
 

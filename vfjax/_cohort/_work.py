@@ -55,8 +55,10 @@ def base_row(entry: CohortEntry) -> dict:
     }
 
 
-def failed_row(entry: CohortEntry, reason: str) -> dict:
-    return {**base_row(entry), "reason": reason}
+def failed_row(entry: CohortEntry, reason: str, rec: Recording | None = None) -> dict:
+    """The row of a recording that failed (with what was measured on it, if it was read)."""
+    measured = {} if rec is None else _measured_columns(rec)
+    return {**base_row(entry), "reason": reason, **measured}
 
 
 def read(task: Task, folder: CohortFolder) -> Task | dict:
@@ -242,7 +244,8 @@ def process_batch(tasks: list[Task], options: CohortOptions, folder, on_done=Non
         for task, first in zip(group, firsts):
             rec = task.recording
             if isinstance(first, BaseException):
-                commit(task, failed_row(task.entry, f"the first fit: {_reason(first)}"))
+                reason = f"the first fit: {_reason(first)}"
+                commit(task, failed_row(task.entry, reason, rec))
                 continue
             if not options.diagnose:
                 commit(task, fit_row(task.entry, rec, first, share), _write_fit(first))
@@ -252,6 +255,7 @@ def process_batch(tasks: list[Task], options: CohortOptions, folder, on_done=Non
                 study = investigate(
                     rec,
                     rounds=options.rounds,
+                    candidates=options.candidates,
                     criteria=options.criteria,
                     plan=options.plan,
                     calibration=options.calibration,

@@ -78,6 +78,19 @@ class Calibration(eqx.Module):
 DEFAULT_CALIBRATION = Calibration()
 
 
+def check_reachable(alpha: float, calibration: Calibration) -> None:
+    """Refuse a calibration whose smallest p-value, 1 / (1 + replicates), is above the level
+    ``alpha``: with it no effect could ever be found needed."""
+    smallest = 1.0 / (1 + calibration.replicates)
+    if smallest > alpha:
+        need = math.ceil(1.0 / alpha - 1.0 - 1e-9)
+        raise ValueError(
+            f"Calibration(replicates={calibration.replicates}) cannot reach alpha = {alpha:g}: "
+            f"its smallest p-value is 1/{calibration.replicates + 1}; give at least {need} "
+            "replicates, or a larger alpha"
+        )
+
+
 # --------------------------------------------------------------------------- null recordings
 @dataclasses.dataclass(frozen=True)
 class Variability:

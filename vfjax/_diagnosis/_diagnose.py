@@ -8,7 +8,7 @@ import numpy as np
 from .._fit import FitResult, Swarm, default_warmup, fit
 from ..compare import compare, noise_level
 from ..recording import Recording
-from ._calibration import DEFAULT_CALIBRATION, Calibration, calibrate
+from ._calibration import DEFAULT_CALIBRATION, Calibration, calibrate, check_reachable
 from ._candidates import as_candidates
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
 from ._refits import anchor_values, confirm, error, refit_each, refit_starts
@@ -50,6 +50,8 @@ def diagnose(
         raise TypeError(
             f"calibration must be a vfjax.Calibration, got {type(calibration).__name__}"
         )
+    if plan is not None:
+        check_reachable(criteria.alpha, calibration)
     cands = as_candidates(result.model, candidates)
     if not cands:
         raise ValueError("no candidate effect to test: every one is already in the model")

@@ -1,0 +1,235 @@
+"""Cohorts (`vfjax.cohort`): a folder or manifest of recordings fitted and diagnosed in one
+resumable job; failures kept with their reasons; a killed run resumed; the same table on two
+Dask worker processes as in one process; each recording's fit the same as alone."""
+
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+
+import vfjax
+from vfjax.io import write_recording
+
+#: First fits small enough for the suite: 16 particles, 20 iterations, one restart.
+QUICK = vfjax.CohortOptions(
+    diagnose=False, restarts=1, swarm=vfjax.Swarm(size=16, iterations=20), batch=4
+)
+#: (name, preset, frame rate in Hz, frames, noise seed): two length buckets, three rates.
+RECORDINGS = (
+    ("a", "N3", 4000.0, 101, 0),
+    ("b", "N3", 8000.0, 201, 1),
+    ("c", "N2", 4000.0, 120, 2),
+    ("d", "N3", 2000.0, 101, 3),
+)
+
+
+def _write_cohort(folder: pathlib.Path) -> pathlib.Path:
+    """Four demo recordings (2 px noise), a table without sidecar and one too short to hold
+    a cycle; a manifest with a grouping column. Returns the manifest."""
+    lines = ["path,sex,condition"]
+    for name, preset, fps, n, seed in RECORDINGS:
+        rec = vfjax.datasets.demo_recording(preset, fps=fps, n_frames=n, seed=seed)
+        write_recording(rec, folder / "gaw" / f"{name}.csv")
+        lines.append(f"gaw/{name}.csv,{rec.metadata['sex']},{'pre' if seed % 2 else 'post'}")
+    (folder / "gaw" / "no_sidecar.csv").write_text("area_px\n1\n2\n3\n")
+    short = vfjax.datasets.demo_recording("N1", n_frames=30)
+    write_recording(short, folder / "gaw" / "short.csv")
+    lines += ["gaw/no_sidecar.csv,male,pre", "gaw/short.csv,male,post"]
+    manifest = folder / "manifest.csv"
+    manifest.write_text("\n".join(lines) + "\n")
+    return manifest
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    """The cohort run in this process: (manifest, output folder, table)."""
+    folder = tmp_path_factory.mktemp("cohort")
+    manifest = _write_cohort(folder)
+    out = folder / "out"
+    return manifest, out, vfjax.cohort(manifest, out, QUICK)
+
+
+def _result_times(out: pathlib.Path) -> dict:
+    return {p.parent.name: p.stat().st_mtime_ns for p in out.glob("recordings/*/result.json")}
+
+
+def test_cohort_table_failures_and_fits_as_alone(serial):
+    manifest, out, frame = serial
+    names = [r[0] for r in RECORDINGS] + ["no_sidecar", "short"]
+    assert list(frame["recording"]) == [f"gaw__{n}" for n in names]  # the manifest's order
+    assert list(frame.columns[:3]) == ["recording", "sex", "condition"]
+    done = frame.set_index("recording")
+    assert (done.loc[[f"gaw__{n}" for n, *_ in RECORDINGS], "status"] == "done").all()
+    assert done.loc["gaw__no_sidecar", "status"] == "failed"
+    assert "sidecar" in done.loc["gaw__no_sidecar", "reason"]
+    assert done.loc["gaw__short", "status"] == "failed"
+    assert "cycle" in done.loc["gaw__short", "reason"]  # the first fit's reason
+    assert done.loc["gaw__short", "frames"] == 30  # what was measured is kept
+    # every fit is the fit of its recording alone (same key, same numbers), and reaches the
+    # noise floor that the 2 px noise leaves (noisy against clean demo GAW)
+    key = jax.random.key(QUICK.seed)
+    for name, preset, fps, n, seed in RECORDINGS:
+        rec = vfjax.load_recording(manifest.parent / "gaw" / f"{name}.csv")
+        alone = vfjax.fit_recording(rec, restarts=1, swarm=QUICK.swarm, key=key)
+        row = done.loc[f"gaw__{name}"]
+        assert row["first NMSE"] == pytest.approx(alone.nmse, rel=1e-7)
+        for p, v in alone.params.items():
+            assert row[f"{p} [{alone.units[p]}]"] == pytest.approx(v, rel=1e-6)
+        clean = vfjax.datasets.demo_recording(preset, 0.0, seed, fps, n).area
+        floor = np.sum((rec.area - clean) ** 2) / np.sum(rec.area**2)
+        assert 0.5 * floor < row["first NMSE"] < 1.5 * floor, (name, row["first NMSE"], floor)
+        assert row["f0 [Hz]"] == pytest.approx(vfjax.descriptors.describe(rec.area, fps).f0)
+    # the table on disk: CSV and Parquet agree with the returned one
+    for disk in (pd.read_csv(out / "cohort.csv"), pd.read_parquet(out / "cohort.parquet")):
+        assert list(disk["recording"]) == list(frame["recording"])
+        np.testing.assert_allclose(disk["first NMSE"], frame["first NMSE"], rtol=1e-12)
+    report = (out / "report.md").read_text()
+    assert "6 recordings: 4 done, 2 failed" in report
+    assert "| gaw__short | the first fit: ValueError" in report
+    assert (out / "figures" / "parameters.png").stat().st_size > 1000
+    assert (out / "recordings" / "gaw__a" / "fit.json").is_file()
+
+
+def test_cohort_rerun_skips_what_is_current_and_redoes_what_changed(serial, tmp_path):
+    manifest, out, frame = serial
+    copy = tmp_path / "out"
+    subprocess.run(["cp", "-a", str(out), str(copy)], check=True)
+    before = _result_times(copy)
+    again = vfjax.cohort(manifest, copy, QUICK)
+    assert _result_times(copy) == before  # nothing redone
+    pd.testing.assert_frame_equal(again.drop(columns="seconds"), frame.drop(columns="seconds"))
+    # another recording under the same name: that one is redone, and only that one
+    changed = tmp_path / "changed"
+    subprocess.run(["cp", "-a", str(manifest.parent / "gaw"), str(changed)], check=True)
+    rec = vfjax.datasets.demo_recording("N3", fps=4000.0, n_frames=101, seed=7)
+    write_recording(rec, changed / "a.csv")
+    (changed.parent / "manifest.csv").write_text(manifest.read_text().replace("gaw/", "changed/"))
+    moved = tmp_path / "moved"
+    subprocess.run(["cp", "-a", str(copy), str(moved)], check=True)
+    for p in (moved / "recordings").iterdir():  # the same recordings, under the new names
+        p.rename(p.parent / p.name.replace("gaw__", "changed__"))
+    before = _result_times(moved)
+    redone = vfjax.cohort(changed.parent / "manifest.csv", moved, QUICK)
+    after = _result_times(moved)
+    assert {n for n in after if after[n] != before.get(n)} == {"changed__a"}
+    assert redone.loc[0, "first NMSE"] != frame.loc[0, "first NMSE"]
+    # other options are other results: everything is redone
+    other = vfjax.cohort(manifest, copy, vfjax.CohortOptions(**{**QUICK.__dict__, "seed": 1}))
+    assert all(_result_times(copy)[n] != t for n, t in before.items() if "gaw__" in n)
+    assert (other["status"] == frame["status"]).all()
+
+
+def test_cohort_refuses_bad_input(tmp_path):
+    with pytest.raises(ValueError, match="'path' column"):
+        (tmp_path / "m.csv").write_text("file,fps\nx.csv,4000\n")
+        vfjax.read_manifest(tmp_path / "m.csv")
+    (tmp_path / "m.csv").write_text("path,fps\nx.csv,fast\n")
+    with pytest.raises(ValueError, match="line 2: fps 'fast' is not a number"):
+        vfjax.read_manifest(tmp_path / "m.csv")
+    (tmp_path / "m.csv").write_text("path,fps\nx.csv,-5\n")
+    with pytest.raises(ValueError, match="line 2"):
+        vfjax.read_manifest(tmp_path / "m.csv")
+    (tmp_path / "m.csv").write_text("path\nx.csv\n./x.csv\n")
+    with pytest.raises(ValueError, match="lists .*x.csv twice"):
+        vfjax.read_manifest(tmp_path / "m.csv")
+    (tmp_path / "m.csv").write_text("path\nx.csv\nx.tsv\n")
+    with pytest.raises(ValueError, match="same name"):
+        vfjax.read_manifest(tmp_path / "m.csv")
+    (tmp_path / "m.csv").write_text("path\nx.csv\n")
+    with pytest.raises(ValueError, match="no recordings"):
+        (tmp_path / "empty").mkdir()
+        vfjax.cohort(tmp_path / "empty", tmp_path / "o1", QUICK)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="holds no cohort"):
+        vfjax.cohort(tmp_path / "m.csv", tmp_path / "full", QUICK)
+    with pytest.raises(ValueError, match="cannot reach alpha"):
+        vfjax.CohortOptions(calibration=vfjax.Calibration(replicates=19))
+    with pytest.raises(ValueError, match="workers"):
+        vfjax.cohort(tmp_path / "m.csv", tmp_path / "o2", QUICK, workers=0)
+
+
+def test_cohort_on_two_dask_workers_equals_serial(serial, tmp_path):
+    manifest, _, frame = serial
+    distributed = vfjax.cohort(manifest, tmp_path / "dask", QUICK, workers=2)
+    pd.testing.assert_frame_equal(
+        distributed.drop(columns="seconds"), frame.drop(columns="seconds"), rtol=1e-9
+    )
+
+
+def test_killed_cohort_resumes_to_the_same_table(serial, tmp_path):
+    """The command line killed (SIGKILL) after its first recording: no half-written file,
+    and a rerun completes the same table as the uninterrupted run."""
+    manifest, _, frame = serial
+    out = tmp_path / "out"
+    # one CPU device, as this process has (the swarm's sums then run in the same order), and
+    # the test session's compilation cache
+    command = [sys.executable, "-m", "vfjax", "--cores", "1", "cohort", str(manifest)]
+    command += ["--out", str(out), "--fits-only", "--restarts", "1", "--iterations", "20"]
+    command += ["--particles", "16", "--batch", "1"]
+    env = {**os.environ, "VFJAX_CACHE_DIR": os.environ["VFJAX_TEST_SESSION_CACHE"]}
+    env.pop("VFJAX_NO_CACHE", None)
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        if any("gaw__a" in str(p) for p in out.glob("recordings/*/result.json")):
+            break  # the first fitted recording is committed
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    committed = {p.parent.name for p in out.glob("recordings/*/result.json")}
+    assert "gaw__a" in committed and len(committed) < len(frame), committed
+    for folder in (out / "recordings").iterdir():  # a folder is whole or hidden (staging)
+        assert folder.name.startswith(".") or (folder / "result.json").is_file()
+    before = _result_times(out)
+    rerun = subprocess.run(command, capture_output=True, text=True, timeout=600, env=env)
+    assert rerun.returncode == 0, rerun.stderr
+    assert "6 recordings: 4 done, 2 failed" in rerun.stdout
+    after = _result_times(out)
+    assert all(after[n] == t for n, t in before.items())  # committed work is kept
+    assert not [p for p in (out / "recordings").iterdir() if p.name.startswith(".")]
+    table = pd.read_parquet(out / "cohort.parquet")
+    pd.testing.assert_frame_equal(
+        table.drop(columns="seconds"), frame.drop(columns="seconds"), rtol=1e-9
+    )
+
+
+def test_cohort_diagnoses_and_reports(tmp_path):
+    """A hidden glottal gap is found in a cohort as `vfjax.investigate` finds it alone; the
+    recording with no effect is cleared."""
+    rec = vfjax.datasets.demo_recording("N3", effect=vfjax.GlottalGap(a_gap=0.004))
+    write_recording(rec, tmp_path / "in" / "gap.csv")
+    options = vfjax.CohortOptions(
+        rounds=1,
+        restarts=2,
+        swarm=vfjax.Swarm(size=16, iterations=20),
+        candidates=(vfjax.GlottalGap, vfjax.CubicStiffness),
+        criteria=vfjax.Criteria(alpha=0.05),
+        calibration=vfjax.Calibration(replicates=19),
+        plan=vfjax.RefitPlan(
+            starts=2, swarm=vfjax.Swarm(size=12, iterations=10), confirm_iterations=None
+        ),
+    )
+    frame = vfjax.cohort(tmp_path / "in", tmp_path / "out", options)
+    row = frame.iloc[0]
+    assert row["status"] == "done", row["reason"]
+    assert row["effects needed"] == "GlottalGap"
+    assert row["GlottalGap p"] == pytest.approx(1 / 20)
+    # the gap's area recovered within 20 %, with its interval in the table
+    assert row["a_gap [cm²]"] == pytest.approx(0.004, rel=0.2)
+    assert row["a_gap low [cm²]"] < row["a_gap [cm²]"] < row["a_gap high [cm²]"]
+    assert row["final NMSE"] < 0.5 * row["first NMSE"]
+    assert row["outcome"] == "explained"
+    folder = tmp_path / "out" / "recordings" / "gap"
+    assert (folder / "report.md").is_file() and (folder / "final_fit.json").is_file()
+    final = vfjax.FitResult.from_json(folder / "final_fit.json")
+    assert final.model.has(vfjax.GlottalGap)
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "| GlottalGap | 1 / 1 |" in report
