@@ -52,7 +52,7 @@ def cohort(
     *,
     fps: float | None = None,
     workers: int | None = None,
-    scheduler: str | None = None,
+    scheduler=None,
     retry_failed: bool = False,
     progress: bool = False,
 ):
@@ -79,8 +79,10 @@ def cohort(
         fps: frame rate (Hz) for files that state none (contour files) and manifest rows
             that leave it empty.
         workers: run on a local Dask cluster of this many worker processes (one core each).
-        scheduler: the address of a running Dask scheduler (e.g. ``tcp://host:8786``); its
-            workers must see ``source`` and ``out`` at the same paths.
+        scheduler: a running Dask cluster: its scheduler's address (e.g.
+            ``tcp://host:8786``) or a ``distributed.Client``; its workers must see
+            ``source`` and ``out`` at the same paths. Each worker gives JAX one CPU device
+            per thread it has (a fit's swarm is split over them).
         retry_failed: redo the recordings that failed in an earlier run, although their
             inputs did not change.
         progress: show one progress bar for the cohort, with the time left.
@@ -168,13 +170,14 @@ def _run_serial(tasks, options, folder, workers, scheduler):
 
 
 def _configure(setup: dict) -> None:
-    """A worker's JAX: one CPU device per core it may use, the compilation cache of the
-    calling process (idempotent; before the worker's first computation)."""
+    """A worker's JAX: one CPU device per thread of the Dask worker, the compilation cache
+    of the calling process (idempotent; before the worker's first computation)."""
     import jax
+    from distributed import get_worker
 
     from .._runtime import use_compilation_cache, use_cpu_cores
 
-    use_cpu_cores(setup["cores"])
+    use_cpu_cores(get_worker().state.nthreads)
     if setup["cache"] is not None:
         use_compilation_cache(setup["cache"])
     else:
@@ -193,8 +196,6 @@ def _remote_batch(tasks, options, root: str, setup: dict):
 def _run_dask(tasks, options, folder, workers, scheduler):
     """Read, fit and diagnose on a Dask cluster (local worker processes, or the one at
     ``scheduler``); yields each row as its batch completes."""
-    import os
-
     import jax
 
     try:
@@ -207,9 +208,8 @@ def _run_dask(tasks, options, folder, workers, scheduler):
     cache = (
         jax.config.jax_compilation_cache_dir if jax.config.jax_enable_compilation_cache else None
     )
-    cluster = None
+    cluster, own = None, True
     if scheduler is None:
-        cores = max((os.cpu_count() or 1) // int(workers), 1)
         cluster = LocalCluster(
             n_workers=int(workers),
             threads_per_worker=1,
@@ -218,10 +218,11 @@ def _run_dask(tasks, options, folder, workers, scheduler):
             silence_logs=logging.ERROR,
         )
         client = Client(cluster)
+    elif isinstance(scheduler, Client):
+        client, own = scheduler, False
     else:
-        cores = None
         client = Client(scheduler)
-    setup = {"cache": cache, "cores": cores}
+    setup = {"cache": cache}
     root = str(folder.root.resolve())
     try:
         n_workers = max(len(client.scheduler_info()["workers"]), 1)
@@ -241,6 +242,7 @@ def _run_dask(tasks, options, folder, workers, scheduler):
         for future in as_completed(futures):
             yield from future.result()
     finally:
-        client.close()
+        if own:
+            client.close()
         if cluster is not None:
             cluster.close()
