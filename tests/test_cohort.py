@@ -23,10 +23,11 @@ from vfjax.io import write_recording
 QUICK = vfjax.CohortOptions(
     diagnose=False, restarts=1, swarm=vfjax.Swarm(size=16, iterations=20), batch=4
 )
-#: (name, preset, frame rate in Hz, frames, noise seed): two length buckets, three rates.
+#: (name, preset, frame rate in Hz, frames, noise seed): three frame rates, two subjects, one
+#: length bucket (one batch of four)
 RECORDINGS = (
     ("a", "N3", 4000.0, 101, 0),
-    ("b", "N3", 8000.0, 201, 1),
+    ("b", "N3", 8000.0, 128, 1),
     ("c", "N2", 4000.0, 120, 2),
     ("d", "N3", 2000.0, 101, 3),
 )
@@ -49,7 +50,7 @@ def _write_cohort(folder: pathlib.Path) -> pathlib.Path:
     return manifest
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def serial(tmp_path_factory):
     """The cohort run in this process: (manifest, output folder, table)."""
     folder = tmp_path_factory.mktemp("cohort")
@@ -243,6 +244,7 @@ def test_cohort_diagnoses_the_shared_gap_case(shared_dir, tmp_path):
     assert "[report](recordings/syn_gap/report.md)" in report
 
 
+@pytest.mark.slow
 def test_cohort_diagnoses_and_reports(tmp_path):
     """A hidden glottal gap (N3, 2 px noise) is found in a cohort with a quick diagnosis (one
     candidate, small searches, 19 null recordings at alpha 0.05); its row and report hold the
@@ -277,3 +279,28 @@ def test_cohort_diagnoses_and_reports(tmp_path):
     assert final.nmse == pytest.approx(row["final NMSE"])
     report = (tmp_path / "out" / "report.md").read_text()
     assert "| GlottalGap | 1 / 1 |" in report
+
+
+@pytest.mark.xdist_group("cohort")  # one run of the serial cohort
+def test_a_diagnosed_recordings_row_and_folder(serial, tmp_path):
+    """The row and folder of a diagnosed recording, from a (score-test) diagnosis of a fit
+    the cohort wrote: NMSE, noise floor and outcome as `Investigation.outcome` gives them,
+    the final model's parameters with units, the report beside the fits."""
+    from vfjax._cohort._work import _write_study, study_row
+    from vfjax.workflow import Investigation, Round
+
+    manifest, out, frame = serial
+    (entry,) = [e for e in vfjax.read_manifest(manifest) if e.id == "gaw__a"]
+    rec = vfjax.load_recording(entry.path)
+    first = vfjax.FitResult.from_json(out / "recordings" / "gaw__a" / "fit.json")
+    assert first.nmse == pytest.approx(frame.loc[0, "first NMSE"], rel=1e-12)
+    d = vfjax.diagnose(first, rec, plan=None)
+    study = Investigation(rec.name, [Round(first, d, None, None)])
+    row = study_row(entry, rec, study, 1.5)
+    outcome = study.outcome(rec)
+    assert row["status"] == "done" and row["effects needed"] == ""
+    assert row["first NMSE"] == row["final NMSE"] == first.nmse
+    assert row["noise NMSE"] == outcome.noise_nmse and row["outcome"] == outcome.status
+    assert row["K [dyne/cm]"] == first.params["K"] and row["conclusion"] == outcome.words
+    _write_study(study, rec)(tmp_path)
+    assert {"fit.json", "final_fit.json", "report.md"} <= {p.name for p in tmp_path.iterdir()}
