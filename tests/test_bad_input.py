@@ -29,10 +29,13 @@ FPS = 4000.0
 
 
 def _cli(*args, cwd, timeout=300, **env_vars):
-    """The command line in a new process, with the test session's compilation cache."""
+    """The command line in a new process, with the test session's compilation cache and one
+    CPU device."""
     env = {k: v for k, v in os.environ.items() if k != "VFJAX_NO_CACHE"}
     cache = os.environ["VFJAX_TEST_SESSION_CACHE"]
-    env.update({"PYTHONUNBUFFERED": "1", "VFJAX_CACHE_DIR": cache, **env_vars})
+    # one CPU device, as the test processes have: the same programs, from the session cache
+    env.update({"PYTHONUNBUFFERED": "1", "VFJAX_CACHE_DIR": cache, "VFJAX_CORES": "1"})
+    env.update(env_vars)
     return subprocess.run(
         [sys.executable, "-m", "vfjax", *map(str, args)],
         cwd=cwd,
