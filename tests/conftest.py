@@ -33,13 +33,6 @@ def pytest_configure(config):
     use_compilation_cache(os.environ[_CACHE_VARIABLE])
 
 
-def pytest_xdist_auto_num_workers(config):
-    """``-n auto``: one test worker more than the machine has cores. Several tests wait on
-    other processes (the command line's, notebook kernels, Dask workers), and a third worker
-    keeps both cores busy meanwhile."""
-    return (os.cpu_count() or 1) + 1
-
-
 def pytest_unconfigure(config):
     folder = getattr(config, "_vfjax_cache", None)
     if folder:
