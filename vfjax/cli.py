@@ -424,6 +424,35 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _diagnosis_arguments(parser) -> None:
+    """The options of a diagnosis (``diagnose``, ``cohort``): the first fit's restarts and
+    swarm, the rounds, the level and the null recordings."""
+    parser.add_argument(
+        "--restarts",
+        type=int,
+        default=4,
+        help="independent searches of the first fit (default: %(default)s)",
+    )
+    parser.add_argument("--rounds", type=int, default=2, help="most effects to add (default: 2)")
+    parser.add_argument(
+        "--alpha",
+        type=float,
+        default=0.01,
+        help="family-wise significance level over the candidates (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--replicates",
+        type=int,
+        default=111,
+        help="most null recordings simulated to calibrate the verdicts; the smallest "
+        "p-value is 1 / (1 + replicates) (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seed of the null recordings (a cohort's fits too)"
+    )
+    parser.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="vfjax",
@@ -496,31 +525,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="parameters of the first fit (default: S, K, C_f, t_c, and P_s unless the "
         "sidecar states subglottal_pressure_dyne_per_cm2)",
     )
-    dg.add_argument(
-        "--restarts",
-        type=int,
-        default=4,
-        help="independent searches of the first fit (default: %(default)s)",
-    )
     dg.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from")
-    dg.add_argument("--rounds", type=int, default=2, help="most effects to add (default: 2)")
-    dg.add_argument(
-        "--alpha",
-        type=float,
-        default=0.01,
-        help="family-wise significance level over the candidates (default: %(default)s)",
-    )
-    dg.add_argument(
-        "--replicates",
-        type=int,
-        default=111,
-        help="most null recordings simulated to calibrate the verdicts; the smallest "
-        "p-value is 1 / (1 + replicates) (default: %(default)s)",
-    )
-    dg.add_argument(
-        "--seed", type=int, default=0, help="seed of the null recordings (default: %(default)s)"
-    )
-    dg.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+    _diagnosis_arguments(dg)
     dg.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     dg.set_defaults(func=cmd_diagnose)
 
@@ -553,27 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=16,
         help="most recordings in one batched fit (default: %(default)s)",
     )
-    co.add_argument(
-        "--restarts",
-        type=int,
-        default=4,
-        help="independent searches of each first fit (default: %(default)s)",
-    )
-    co.add_argument("--rounds", type=int, default=2, help="most effects to add (default: 2)")
-    co.add_argument(
-        "--alpha",
-        type=float,
-        default=0.01,
-        help="family-wise significance level over the candidates (default: %(default)s)",
-    )
-    co.add_argument(
-        "--replicates",
-        type=int,
-        default=111,
-        help="most null recordings per diagnosis (default: %(default)s)",
-    )
-    co.add_argument("--seed", type=int, default=0, help="PRNG seed (default: %(default)s)")
-    co.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+    _diagnosis_arguments(co)
     co.add_argument("--particles", type=int, default=48, help="PSO particles per fit")
     co.add_argument(
         "--retry-failed",
