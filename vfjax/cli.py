@@ -275,6 +275,9 @@ def cmd_diagnose(args) -> int:
 
 def cmd_cohort(args) -> int:
     """Fit and diagnose every recording of a folder or manifest; resumable."""
+    import matplotlib
+
+    matplotlib.use("Agg")
     from ._cohort import CohortOptions, cohort
     from ._diagnosis import Calibration, Criteria
     from ._fit import Swarm

@@ -91,9 +91,6 @@ def write_cohort_report(frame, folder, groups: list[str], seconds: float, dpi: i
         seconds: the run's wall time (s).
         dpi: the figures' resolution.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     folder = pathlib.Path(folder)
     group = groups[0] if groups else None
     done = frame[frame["status"] == "done"]

@@ -209,9 +209,6 @@ def process_batch(tasks: list[Task], options: CohortOptions, folder, on_done=Non
         folder: the cohort's output folder (a path or `CohortFolder`).
         on_done: called with each row as it is committed.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from .._diagnosis import investigate
