@@ -11,7 +11,7 @@ from ._options import DEFAULT_OPTIONS, CohortOptions
 from ._report import write_cohort_report
 from ._store import CohortFolder
 from ._table import table, write_table
-from ._work import Task, batch_kind, finite_or_none, process_batch, read
+from ._work import Task, by_kind, finite_or_none, process_batch, read
 
 
 def _entries(source, fps, out) -> tuple[list[CohortEntry], list[str]]:
@@ -28,11 +28,8 @@ def _batches(tasks: list[Task], size: int, split: int = 1) -> list[list[Task]]:
     """Tasks grouped by `batch_kind` (in their order), each group cut into batches of at
     most ``size``, and into at least ``split`` batches where it has as many tasks (so that
     every worker gets a share)."""
-    kinds = {}
-    for t in tasks:
-        kinds.setdefault(batch_kind(t.recording), []).append(t)
     batches = []
-    for group in kinds.values():
+    for group in by_kind(tasks):
         n = max(math.ceil(len(group) / size), min(split, len(group)))
         per = math.ceil(len(group) / n)
         batches += [group[i : i + per] for i in range(0, len(group), per)]

@@ -6,7 +6,6 @@ Dask worker (`vfjax.cohort`), with the same results."""
 import dataclasses
 import math
 import time
-import traceback
 import warnings
 
 import numpy as np
@@ -85,6 +84,15 @@ def batch_kind(recording: Recording) -> tuple:
         recording.unit,
         PRESSURE_KEY in recording.metadata,
     )
+
+
+def by_kind(tasks: list[Task]) -> list[list[Task]]:
+    """The tasks grouped by `batch_kind` of their recordings, each group in the tasks'
+    order."""
+    kinds = {}
+    for task in tasks:
+        kinds.setdefault(batch_kind(task.recording), []).append(task)
+    return list(kinds.values())
 
 
 def _measured_columns(rec: Recording) -> dict:
@@ -228,10 +236,7 @@ def process_batch(tasks: list[Task], options: CohortOptions, folder, on_done=Non
         if on_done is not None:
             on_done(row)
 
-    kinds = {}
-    for task in tasks:
-        kinds.setdefault(batch_kind(task.recording), []).append(task)
-    for group in kinds.values():
+    for group in by_kind(tasks):
         t0 = time.perf_counter()
         try:
             firsts = _fit_group(group, options)
@@ -261,10 +266,7 @@ def process_batch(tasks: list[Task], options: CohortOptions, folder, on_done=Non
                 )
             except Exception as err:
                 row = fit_row(task.entry, rec, first, share)
-                reason = _reason(err)
-                if not reason.strip():
-                    reason = traceback.format_exc(limit=1)
-                row.update(status="failed", reason=f"the diagnosis: {reason}")
+                row.update(status="failed", reason=f"the diagnosis: {_reason(err)}")
                 commit(task, row, _write_fit(first))
                 continue
             seconds = share + time.perf_counter() - t1
