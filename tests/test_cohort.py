@@ -2,6 +2,7 @@
 resumable job; failures kept with their reasons; a killed run resumed; the same table on two
 Dask worker processes as in one process; each recording's fit the same as alone."""
 
+import dataclasses
 import json
 import os
 import pathlib
@@ -159,6 +160,35 @@ def test_cohort_refuses_bad_input(tmp_path):
         vfjax.CohortOptions(calibration=vfjax.Calibration(replicates=19))
     with pytest.raises(ValueError, match="workers"):
         vfjax.cohort(tmp_path / "m.csv", tmp_path / "o2", QUICK, workers=0)
+
+
+def test_a_folder_holds_only_its_recordings(shared_dir, tmp_path):
+    """A folder's scan takes tables with an area column, contour files and videos, and
+    leaves out notes, a README.txt and a manifest; a table without a sidecar is read at the
+    cohort's (or the manifest's) frame rate."""
+    real = shared_dir / "data" / "real" / "FN003_segdata.txt"
+    (tmp_path / "sub").mkdir()
+    shutil.copy(real, tmp_path / "sub" / real.name)
+    rec = vfjax.datasets.demo_recording("N3", fps=4000.0, n_frames=101)
+    write_recording(rec, tmp_path / "a.csv")
+    (tmp_path / "plain.csv").write_text("area_px\n" + "\n".join(map(str, rec.area)) + "\n")
+    (tmp_path / "README.txt").write_text("Recordings of the spring session.\n")
+    (tmp_path / "manifest.csv").write_text("path,fps\nplain.csv,4000\n")
+    (tmp_path / "notes.tsv").write_text("subject\tnote\nA\thoarse\n")
+    (tmp_path / ".hidden.csv").write_text("area_px\n1\n")
+    entries = vfjax.find_entries(tmp_path, fps=4000.0)
+    assert [e.id for e in entries] == ["a", "plain", "sub__FN003_segdata"]
+    assert [e.kind for e in entries] == ["table", "table", "contours"]
+    from vfjax._cohort._inputs import load_entry
+
+    loaded = [load_entry(e) for e in entries]
+    np.testing.assert_allclose(loaded[1].area, loaded[0].area, rtol=1e-12)
+    assert loaded[1].fps == 4000.0 and loaded[1].unit == "px"
+    assert loaded[2].area == pytest.approx(vfjax.recording.load_contours(real, 4000.0).area)
+    (plain,) = vfjax.read_manifest(tmp_path / "manifest.csv")
+    assert load_entry(plain).fps == 4000.0
+    with pytest.raises(ValueError, match="disagrees with the sidecar"):
+        load_entry(dataclasses.replace(entries[0], fps=8000.0))
 
 
 @pytest.mark.xdist_group("cohort")  # one run of the serial cohort

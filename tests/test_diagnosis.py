@@ -153,11 +153,11 @@ def _shared(shared_dir, name, **options):
     return rec, answer, result, vfjax.diagnose(result, rec, **options)
 
 
-#: A level whose smallest p-value (1/40) takes three batches of null recordings instead of
-#: the default's seven (1/112 at alpha 0.01; notebook 02 uses it in the suite too).
+#: A level whose smallest p-value (1/20) takes two batches of null recordings instead of the
+#: default's seven (1/112 at alpha 0.01; notebook 02 uses it in the suite too).
 QUICK_LEVEL = {
     "criteria": vfjax.Criteria(alpha=0.05),
-    "calibration": vfjax.Calibration(replicates=39),
+    "calibration": vfjax.Calibration(replicates=19),
 }
 
 

@@ -62,6 +62,23 @@ def test_bad_tables_are_refused(tmp_path):
         load_recording(csv)
     with pytest.raises(ValueError, match="frames"):
         Recording(area=np.ones(5), fps=4000.0, edges=np.zeros((4, 2, 3)))
+    # a table without a sidecar: read at a given frame rate, in the unit its column names
+    plain = tmp_path / "plain.csv"
+    plain.write_text("area_mm2\n0.5\n1.5\n0.25\n")
+    with pytest.raises(FileNotFoundError, match="sidecar"):
+        load_recording(plain)
+    rec = load_recording(plain, fps=3000.0)
+    assert rec.fps == 3000.0 and rec.unit == "mm2"
+    np.testing.assert_array_equal(rec.area, [0.5, 1.5, 0.25])
+    plain.write_text("area\n0.5\n1.5\n")
+    with pytest.raises(ValueError, match="names no unit"):
+        load_recording(plain, fps=3000.0)
+    with pytest.raises(ValueError, match="fps"):
+        load_recording(plain, fps=0.0)
+    csv.write_text("frame,area_px\n0,1\n1,2\n")  # beside its sidecar (4000 Hz)
+    assert load_recording(csv, fps=4000.0).fps == 4000.0
+    with pytest.raises(ValueError, match="fps 5000 Hz disagrees with the sidecar's"):
+        load_recording(csv, fps=5000.0)
     bad = tmp_path / "b_segdata.txt"
     bad.write_text("# c\n1 2 3\n")
     with pytest.raises(ValueError, match="two"):

@@ -212,8 +212,8 @@ def _diagnosis_section(out):
 
 
 def _load_input(args):
-    """The recording named on the command line: a GAW table with its sidecar, or a contour
-    file (``.txt``, with --fps)."""
+    """The recording named on the command line: a GAW table with its sidecar (or with --fps,
+    where it has none), or a contour file (``.txt``, with --fps)."""
     from .recording import check_frame_rate, load_contours, load_recording
 
     path = pathlib.Path(args.recording)
@@ -223,13 +223,7 @@ def _load_input(args):
         if args.fps is None:
             raise ValueError(f"{path.name}: a contour file carries no frame rate; give --fps")
         return load_contours(path, args.fps)
-    rec = load_recording(path)
-    if args.fps is not None and args.fps != rec.fps:
-        raise ValueError(
-            f"--fps {args.fps:g} disagrees with the sidecar of {path.name} "
-            f"({rec.fps:g} Hz): a table's frame rate comes from its sidecar"
-        )
-    return rec
+    return load_recording(path, fps=args.fps)
 
 
 def _report_failure(result, what: str) -> int:

@@ -157,12 +157,13 @@ def check_frame_rate(fps, where: str = "recording", hint: str = "") -> float:
     return fps
 
 
-def load_recording(path, sidecar=None) -> Recording:
+def load_recording(path, sidecar=None, fps: float | None = None) -> Recording:
     """Load a GAW table (CSV or TSV) and its JSON sidecar.
 
     The table needs an area column (``area_px``, ``area_mm2``, ``area_cm2`` or ``area``, the
     unit then from the sidecar). The sidecar (default: the table's path with ``.json``) gives
-    ``fps`` and ``area_unit``; see ``data_schema/recording.schema.json``.
+    ``fps`` and ``area_unit``; see ``data_schema/recording.schema.json``. A table without a
+    sidecar is read with ``fps`` (Hz) given here and the unit its area column names.
 
     A ``frame`` column (integers) orders the rows: rows out of order are sorted (with a
     warning), a repeated frame is an error, and so is a gap (frame 50 followed by frame 80:
@@ -171,11 +172,13 @@ def load_recording(path, sidecar=None) -> Recording:
     ``frame`` column it orders the rows and locates gaps instead.
 
     Raises:
-        FileNotFoundError: the table or its sidecar is missing.
-        ValueError: anything else the files get wrong; the message names the file.
+        FileNotFoundError: the table is missing, or its sidecar where no ``fps`` is given.
+        ValueError: anything else the files get wrong (an ``fps`` other than the sidecar's,
+            a table without sidecar whose area column names no unit); the message names the
+            file.
     """
     path = pathlib.Path(path)
-    meta, unit, spans = _read_table(path, sidecar)
+    meta, unit, spans = _read_table(path, sidecar, fps)
     if len(spans) > 1:
         (_, f1, _), (g0, _, _) = spans[0], spans[1]
         raise ValueError(
@@ -186,12 +189,15 @@ def load_recording(path, sidecar=None) -> Recording:
     return _recording(path, spans[0][2], meta, unit)
 
 
-def load_segments(path, sidecar=None, min_frames: int = 2) -> list[Recording]:
-    """Load a GAW table like `load_recording`, cut at its gaps: one `Recording` per run of
-    consecutive frames of at least ``min_frames`` frames, named ``<stem>_frames_<a>-<b>``
-    (its first and last frame numbers; its metadata gives ``first_frame``)."""
+def load_segments(
+    path, sidecar=None, min_frames: int = 2, fps: float | None = None
+) -> list[Recording]:
+    """Load a GAW table like `load_recording` (``sidecar`` and ``fps`` as there), cut at its
+    gaps: one `Recording` per run of consecutive frames of at least ``min_frames`` frames,
+    named ``<stem>_frames_<a>-<b>`` (its first and last frame numbers; its metadata gives
+    ``first_frame``)."""
     path = pathlib.Path(path)
-    meta, unit, spans = _read_table(path, sidecar)
+    meta, unit, spans = _read_table(path, sidecar, fps)
     out = []
     for first, last, area in spans:
         if area.size >= max(min_frames, 2):
@@ -246,13 +252,22 @@ def read_sidecar(path) -> dict:
     return meta
 
 
-def _read_table(path, sidecar):
-    """The sidecar, the area unit and the table's runs of consecutive frames, as
-    [(first frame, last frame, areas)]."""
+def _read_table(path, sidecar, fps=None):
+    """The sidecar (or ``{"fps": fps}`` for a table without one), the area unit and the
+    table's runs of consecutive frames, as [(first frame, last frame, areas)]."""
     if not path.exists():
         raise FileNotFoundError(f"no recording at {path}")
+    if fps is not None:
+        fps = check_frame_rate(fps, f"{path}: fps")
     sidecar = pathlib.Path(sidecar) if sidecar else path.with_suffix(".json")
-    meta = read_sidecar(sidecar)
+    if fps is not None and not sidecar.exists():
+        meta = {"fps": fps}
+    else:
+        meta = read_sidecar(sidecar)
+        if fps is not None and not math.isclose(fps, meta["fps"]):
+            raise ValueError(
+                f"{path}: fps {fps:g} Hz disagrees with the sidecar's ({meta['fps']:g} Hz)"
+            )
     fps = meta["fps"]
     text = _read_text(path, "GAW table (CSV or TSV)")
     delimiter = "\t" if path.suffix.lower() in (".tsv", ".tab") else ","
@@ -281,6 +296,11 @@ def _read_table(path, sidecar):
             break
     else:
         raise ValueError(f"{path}: no area column (area_px, area_mm2, area_cm2 or area)")
+    if unit is None:
+        raise ValueError(
+            f"{path}: the column 'area' names no unit and there is no sidecar to give it: "
+            "name the column area_px, area_mm2 or area_cm2, or write the sidecar"
+        )
     body = rows[1:]
     for i, r in enumerate(body):
         if len(r) != len(header):

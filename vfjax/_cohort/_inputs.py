@@ -5,7 +5,6 @@ import csv
 import dataclasses
 import hashlib
 import io
-import math
 import pathlib
 import re
 
@@ -66,18 +65,49 @@ def _safe_id(relative: pathlib.PurePath) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._") or "recording"
 
 
+#: Bytes of a text file read to tell whether it is a recording.
+_SNIFF_BYTES = 1 << 16
+_AREA_COLUMNS = ("area_px", "area_mm2", "area_cm2", "area")
+
+
+def _first_line(path: pathlib.Path) -> str:
+    """The first line of ``path`` that is neither empty nor a ``#`` comment ("" if none in
+    its first `_SNIFF_BYTES`)."""
+    with open(path, "rb") as f:
+        head = f.read(_SNIFF_BYTES).decode("utf-8-sig", errors="replace")
+    for line in head.splitlines():
+        if line.strip() and not line.lstrip().startswith("#"):
+            return line
+    return ""
+
+
 def _is_input(path: pathlib.Path) -> bool:
-    return path.suffix.lower() in TABLE_SUFFIXES + CONTOUR_SUFFIXES + VIDEO_SUFFIXES
+    """Whether a file found in a cohort's folder is a recording: a video (by its suffix), a
+    table whose header names an area column, or a contour file whose first line is numbers
+    (a README.txt or a manifest beside the recordings is not one)."""
+    suffix = path.suffix.lower()
+    if suffix in VIDEO_SUFFIXES:
+        return True
+    if suffix in TABLE_SUFFIXES:
+        delimiter = "\t" if suffix == ".tsv" else ","
+        header = [c.strip() for c in _first_line(path).split(delimiter)]
+        return any(c in header for c in _AREA_COLUMNS)
+    if suffix in CONTOUR_SUFFIXES:
+        tokens = _first_line(path).split()
+        return bool(tokens) and all(re.fullmatch(r"[0-9.eE+-]+", t) for t in tokens)
+    return False
 
 
 def find_entries(folder, fps: float | None = None, exclude=None) -> list[CohortEntry]:
     """Every recording under ``folder`` (recursively, hidden files and folders skipped):
-    GAW tables (``.csv``/``.tsv`` with a ``.json`` sidecar), contour files (``.txt``) and
-    videos, in sorted order.
+    GAW tables (``.csv``/``.tsv`` whose header names an area column, with a ``.json``
+    sidecar or read at ``fps``), contour files (``.txt`` of numbers) and videos, in sorted
+    order. Other files (notes, a manifest, a README.txt) are left out.
 
     Arguments:
         folder: the cohort's folder.
-        fps: frame rate (Hz) for files that do not state one (contour files).
+        fps: frame rate (Hz) for files that do not state one (contour files, tables without
+            a sidecar).
         exclude: a folder to leave out (the cohort's output folder, when it lies inside).
     """
     folder = pathlib.Path(folder)
@@ -98,8 +128,8 @@ def find_entries(folder, fps: float | None = None, exclude=None) -> list[CohortE
     _check_unique(entries, folder)
     if not entries:
         raise ValueError(
-            f"no recordings in {folder}: expected GAW tables (.csv/.tsv with a .json "
-            f"sidecar), contour files (.txt) or videos ({', '.join(VIDEO_SUFFIXES)})"
+            f"no recordings in {folder}: expected GAW tables (.csv/.tsv with an area "
+            f"column), contour files (.txt) or videos ({', '.join(VIDEO_SUFFIXES)})"
         )
     return entries
 
@@ -194,19 +224,15 @@ def content_key(entry: CohortEntry, settings: str) -> str:
 
 
 def load_entry(entry: CohortEntry) -> Recording:
-    """Read the recording: a table with its sidecar, a contour file at ``entry.fps``, or a
+    """Read the recording: a table with its sidecar (or at ``entry.fps`` where it has none;
+    an ``entry.fps`` other than the sidecar's is an error), a contour file at ``entry.fps``, or a
     video segmented into its glottal area (with per-fold areas split by the glottal
     midline, where the glottis spans rows to split). Named by ``entry.id``."""
     from ..recording import load_contours, load_recording
 
     kind = entry.kind
     if kind == "table":
-        rec = load_recording(entry.path)
-        if entry.fps is not None and not math.isclose(entry.fps, rec.fps):
-            raise ValueError(
-                f"the manifest's fps {entry.fps:g} disagrees with the sidecar of "
-                f"{entry.path.name} ({rec.fps:g} Hz)"
-            )
+        rec = load_recording(entry.path, fps=entry.fps)
     elif kind == "contours":
         if entry.fps is None:
             raise ValueError(
