@@ -1,10 +1,12 @@
 """Loading recordings: tables with sidecars, and the real contour files."""
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
+import vfjax
 from vfjax.descriptors import fundamental_frequency
 from vfjax.recording import Recording, load_contours, load_recording
 
@@ -42,7 +44,24 @@ def test_table_and_sidecar(shared_dir, tmp_path):
     path = write_recording(rec, tmp_path / "copy.csv")
     back = load_recording(path)
     np.testing.assert_allclose(back.area, rec.area)
-    assert back.fps == rec.fps
+    assert back.fps == rec.fps and back.folds is None
+    # per-fold areas round trip, through gaps too (each segment keeps its folds)
+    left = np.round(0.3 * rec.area, 3)
+    sided = dataclasses.replace(rec, folds=np.stack([left, rec.area - left], axis=1))
+    path = write_recording(sided, tmp_path / "sided.csv")
+    assert path.read_text().splitlines()[0] == "frame,time_s,area_px,area_left_px,area_right_px"
+    np.testing.assert_allclose(load_recording(path).folds, sided.folds, atol=1e-6)
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:51] + lines[61:]) + "\n")  # frames 50-59 missing
+    first, second = vfjax.recording.load_segments(path)
+    np.testing.assert_allclose(second.folds, sided.folds[60:], atol=1e-6)
+    assert first.folds.shape == (50, 2)
+    path.write_text("\n".join(ln.rsplit(",", 1)[0] for ln in lines) + "\n")
+    with pytest.raises(ValueError, match="area_left_px without its other fold"):
+        load_recording(path)
+    path.write_text(lines[0] + "\n" + lines[1].rsplit(",", 1)[0] + ",5000\n" + lines[2] + "\n")
+    with pytest.raises(ValueError, match="folds do not add up"):
+        load_recording(path)
 
 
 def test_bad_tables_are_refused(tmp_path):

@@ -251,7 +251,7 @@ def test_extract_writes_each_folds_area(tmp_path):
     out = tmp_path / "gaw.csv"
     assert cli.main(["--no-cache", "extract", str(video), "--fps", "4000", "-o", str(out)]) == 0
     header = out.read_text().splitlines()[0].split(",")
-    assert header == ["frame", "time_s", "area_px", "left_area_px", "right_area_px"]
+    assert header == ["frame", "time_s", "area_px", "area_left_px", "area_right_px"]
     table = np.loadtxt(out, delimiter=",", skiprows=1)
     np.testing.assert_allclose(table[:, 3] + table[:, 4], table[:, 2], atol=2e-6)
     big = clip.area >= 0.1 * clip.area.max()
@@ -259,8 +259,9 @@ def test_extract_writes_each_folds_area(tmp_path):
     sidecar = json.loads(out.with_suffix(".json").read_text())
     assert abs(sidecar["asymmetry"]["asi"] - 0.5) < 0.05
     assert sidecar["asymmetry"]["cycles"] >= 2
-    rec = vfjax.load_recording(out)  # the extra columns and keys load as they are
+    rec = vfjax.load_recording(out)  # with its folds' areas, for a fit with two folds
     np.testing.assert_allclose(rec.area, table[:, 2])
+    np.testing.assert_allclose(rec.folds, table[:, 3:5])
 
 
 def test_sub_pixel_settings_are_checked():

@@ -341,7 +341,7 @@ def cmd_extract(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .asymmetry import asymmetry_indices, fold_areas, glottal_midline
+    from .asymmetry import asymmetry_indices, glottal_midline, with_fold_areas
     from .io import check_output_file, save_figure, write_recording
     from .recording import check_frame_rate
     from .segmentation import frames_to_recording
@@ -360,11 +360,10 @@ def cmd_extract(args) -> int:
         midline = glottal_midline(masks=rec.masks)
     except ValueError as err:
         print(f"vfjax: no left/right split: {err}", file=sys.stderr)
-        midline, columns = None, {}
+        midline = None
     else:
-        left, right = fold_areas(rec, midline)
-        columns = {"left_area_px": left, "right_area_px": right}
-        indices = asymmetry_indices(left, right, rec.fps)
+        rec = with_fold_areas(rec, midline)  # written as area_left_px and area_right_px
+        indices = asymmetry_indices(rec.folds[:, 0], rec.folds[:, 1], rec.fps)
         rec = dataclasses.replace(
             rec,
             metadata={
@@ -378,7 +377,7 @@ def cmd_extract(args) -> int:
             },
         )
     # masks go in the figure, not the table
-    out = write_recording(dataclasses.replace(rec, masks=None), table, columns)
+    out = write_recording(dataclasses.replace(rec, masks=None), table)
     i = int(np.argmax(rec.area))
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.6), gridspec_kw={"width_ratios": [1, 2.2]})
     a.imshow(video[i], cmap="gray")
@@ -389,9 +388,9 @@ def cmd_extract(args) -> int:
     a.set_title(f"frame {i} (largest area)")
     a.axis("off")
     b.plot(rec.time * 1e3, rec.area, color="#2a9d8f", label="total")
-    for name, values in columns.items():
-        b.plot(rec.time * 1e3, values, linewidth=0.8, label=name.replace("_area_px", " (image)"))
-    if columns:
+    if rec.folds is not None:
+        for side, values in zip(("left", "right"), rec.folds.T):
+            b.plot(rec.time * 1e3, values, linewidth=0.8, label=f"{side} (image)")
         b.legend()
     b.set_xlabel("time (ms)")
     b.set_ylabel("glottal area (px)")

@@ -153,15 +153,23 @@ def write_simulation(sim, path, *, metadata: dict | None = None) -> pathlib.Path
 
 
 def write_recording(recording, path, columns: dict | None = None) -> pathlib.Path:
-    """Write a `Recording` as ``path`` (CSV: frame, time_s, area_<unit>) and its sidecar.
+    """Write a `Recording` as ``path`` (CSV: frame, time_s, area_<unit>, and
+    area_left_<unit>, area_right_<unit> where it has per-fold areas) and its sidecar.
 
     Arguments:
         recording: the recording.
         path: the table's path; the sidecar is written beside it (``.json``).
-        columns: further columns, name -> one value per frame (e.g. per-fold areas).
+        columns: further columns, name -> one value per frame.
     """
     path = pathlib.Path(path)
-    columns = {} if columns is None else columns
+    columns = {} if columns is None else dict(columns)
+    if recording.folds is not None:
+        unit = recording.unit
+        sides = {
+            f"area_left_{unit}": recording.folds[:, 0],
+            f"area_right_{unit}": recording.folds[:, 1],
+        }
+        columns = {**sides, **columns}
     for name, values in columns.items():
         if len(values) != recording.n_frames:
             raise ValueError(

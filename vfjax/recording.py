@@ -161,7 +161,9 @@ def load_recording(path, sidecar=None, fps: float | None = None) -> Recording:
     """Load a GAW table (CSV or TSV) and its JSON sidecar.
 
     The table needs an area column (``area_px``, ``area_mm2``, ``area_cm2`` or ``area``, the
-    unit then from the sidecar). The sidecar (default: the table's path with ``.json``) gives
+    unit then from the sidecar); the folds' areas, left and right of the glottal midline in
+    the image, may follow as ``area_left_<unit>`` and ``area_right_<unit>`` (both, adding up
+    to the area: `Recording.folds`). The sidecar (default: the table's path with ``.json``) gives
     ``fps`` and ``area_unit``; see ``data_schema/recording.schema.json``. A table without a
     sidecar is read with ``fps`` (Hz) given here and the unit its area column names.
 
@@ -180,13 +182,13 @@ def load_recording(path, sidecar=None, fps: float | None = None) -> Recording:
     path = pathlib.Path(path)
     meta, unit, spans = _read_table(path, sidecar, fps)
     if len(spans) > 1:
-        (_, f1, _), (g0, _, _) = spans[0], spans[1]
+        (_, f1, _, _), (g0, _, _, _) = spans[0], spans[1]
         raise ValueError(
             f"{path}: frames missing: frame {f1} is followed by frame {g0} "
             f"({g0 - f1 - 1} frames missing, {len(spans) - 1} gap(s) in all). A GAW must be "
             "sampled without gaps; vfjax.recording.load_segments cuts it into segments"
         )
-    return _recording(path, spans[0][2], meta, unit)
+    return _recording(path, spans[0][2], meta, unit, folds=spans[0][3])
 
 
 def load_segments(
@@ -199,10 +201,11 @@ def load_segments(
     path = pathlib.Path(path)
     meta, unit, spans = _read_table(path, sidecar, fps)
     out = []
-    for first, last, area in spans:
+    for first, last, area, folds in spans:
         if area.size >= max(min_frames, 2):
             name = f"{path.stem}_frames_{first}-{last}"
-            out.append(_recording(path, area, {**meta, "first_frame": first}, unit, name))
+            meta_i = {**meta, "first_frame": first}
+            out.append(_recording(path, area, meta_i, unit, name, folds))
     if not out:
         raise ValueError(f"{path}: no segment of at least {min_frames} consecutive frames")
     return out
@@ -306,6 +309,12 @@ def _read_table(path, sidecar, fps=None):
         if len(r) != len(header):
             raise ValueError(f"{path}: line {i + 2} has {len(r)} fields, the header {len(header)}")
     area = _column(path, header, body, column)
+    # the folds' areas, left and right of the glottal midline, in the area column's unit
+    sides = [column.replace("area", f"area_{side}", 1) for side in ("left", "right")]
+    present = [c for c in sides if c in header]
+    if len(present) == 1:
+        raise ValueError(f"{path}: column {present[0]} without its other fold's ({sides})")
+    folds = np.stack([_column(path, header, body, c) for c in sides], 1) if present else None
     frames = _column(path, header, body, "frame") if "frame" in header else None
     times = _column(path, header, body, "time_s") if "time_s" in header else None
     if times is not None and not np.all(np.isfinite(times)):
@@ -340,6 +349,7 @@ def _read_table(path, sidecar, fps=None):
             stacklevel=3,
         )
     frames, area = frames[order], area[order]
+    folds = None if folds is None else folds[order]
     repeated = frames[1:][np.diff(frames) == 0]
     if repeated.size:
         raise ValueError(f"{path}: frame {int(repeated[0])} appears more than once")
@@ -356,16 +366,23 @@ def _read_table(path, sidecar, fps=None):
                 f"the times imply {implied:.6g} Hz (off by up to {off:.2f} frames)"
             )
     bounds = np.flatnonzero(np.diff(frames) > 1) + 1
+    pieces = [None] * (len(bounds) + 1) if folds is None else np.split(folds, bounds)
     spans = [
-        (int(f[0]), int(f[-1]), a) for f, a in zip(np.split(frames, bounds), np.split(area, bounds))
+        (int(f[0]), int(f[-1]), a, d)
+        for f, a, d in zip(np.split(frames, bounds), np.split(area, bounds), pieces)
     ]
     return meta, unit, spans
 
 
-def _recording(path, area, meta, unit, name=None) -> Recording:
+def _recording(path, area, meta, unit, name=None, folds=None) -> Recording:
     try:
         return Recording(
-            area=area, fps=meta["fps"], unit=unit, metadata=meta, name=name or path.stem
+            area=area,
+            fps=meta["fps"],
+            unit=unit,
+            metadata=meta,
+            name=name or path.stem,
+            folds=folds,
         )
     except ValueError as err:
         raise ValueError(f"{path}: {err}") from None
