@@ -187,6 +187,18 @@ def test_a_folder_holds_only_its_recordings(shared_dir, tmp_path):
     assert loaded[2].area == pytest.approx(vfjax.recording.load_contours(real, 4000.0).area)
     (plain,) = vfjax.read_manifest(tmp_path / "manifest.csv")
     assert load_entry(plain).fps == 4000.0
+    # the asymmetry indices of a recording with folds: one fold moving half as far as the
+    # other, in phase (ASI 0.5, PAI 0); none for a GAW alone
+    from vfjax._cohort._work import _measured_columns
+
+    assert loaded[1].folds is None  # the plain table: a GAW alone
+    assert "ASI" not in _measured_columns(loaded[1])
+    third = loaded[1].area / 3.0
+    sided = dataclasses.replace(loaded[1], folds=np.stack([third, 2.0 * third], axis=1))
+    row = _measured_columns(sided)
+    assert row["ASI"] == pytest.approx(0.5) and row["PAI"] == 0.0
+    contour = _measured_columns(loaded[2])  # from the contour file's edges
+    assert 0.0 < contour["ASI"] <= 1.0 and 0.0 <= contour["PAI"] < 0.5
     with pytest.raises(ValueError, match="disagrees with the sidecar"):
         load_entry(dataclasses.replace(entries[0], fps=8000.0))
 

@@ -22,6 +22,8 @@ LEADING_COLUMNS = (
     "closing quotient",
     "jitter",
     "shimmer",
+    "ASI",
+    "PAI",
     "first NMSE",
     "final NMSE",
     "noise NMSE",

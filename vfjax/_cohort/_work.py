@@ -96,6 +96,10 @@ def by_kind(tasks: list[Task]) -> list[list[Task]]:
 
 
 def _measured_columns(rec: Recording) -> dict:
+    """The measured GAW's descriptors (`DESCRIPTOR_COLUMNS`) and, for a recording whose
+    folds can be told apart (per-fold areas, contour edges or video masks split by the
+    glottal midline), the asymmetry indices ASI and PAI (`vfjax.asymmetry`)."""
+    from ..asymmetry import asymmetry_indices, fold_areas
     from ..descriptors import describe
 
     with warnings.catch_warnings():
@@ -104,6 +108,13 @@ def _measured_columns(rec: Recording) -> dict:
     row = {"fps [Hz]": rec.fps, "frames": rec.n_frames, "unit": rec.unit}
     for column, field in DESCRIPTOR_COLUMNS:
         row[column] = float(getattr(d, field))
+    if rec.folds is not None or rec.edges is not None or rec.masks is not None:
+        try:
+            indices = asymmetry_indices(*fold_areas(rec), rec.fps)
+        except ValueError:  # a glottis that never spans two rows: no midline
+            pass
+        else:
+            row["ASI"], row["PAI"] = indices.asi, indices.pai
     return row
 
 
