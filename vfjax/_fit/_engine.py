@@ -17,6 +17,7 @@ batch it ran in.
 """
 
 import dataclasses
+import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -43,6 +44,17 @@ DEFAULT_PARAMS = ("S", "K", "C_f")
 DEFAULT_SWARM = Swarm()
 DEFAULT_POLISH = Polish()
 
+
+#: A recording of more cycles than this is fitted by continuation in its length: the basin
+#: of its true f0 narrows as 1 / cycles (a relative f0 error of 1 / N slips a whole cycle by
+#: the end), too narrow for the swarm. The swarm and a first polish fit its first
+#: `FIRST_WINDOW_CYCLES` cycles; each further polish fits `WINDOW_GROWTH` times as many,
+#: from the last one's point, up to the whole recording (`_stages`).
+LONG_CYCLES = 24
+FIRST_WINDOW_CYCLES = 16
+WINDOW_GROWTH = 4
+#: The fewest frames of a window.
+MIN_WINDOW_FRAMES = 64
 
 #: Most particles one device simulates side by side (one vmapped simulation).
 MAX_LANES = 96
@@ -167,15 +179,20 @@ def _particle_mesh(swarm: Swarm):
 # computes alone (a vmapped batch rounds differently from a batch of one). Padding fits
 # (``active`` False) are skipped.
 @eqx.filter_jit
-def _polish_batch(batch, active, positions, polish: Polish | None):
-    """Each fit's polish from its swarm's best ``positions``: the start's coordinates and
+def _polish_batch(batch, active, positions, polish: Polish | None, from_point: bool = False):
+    """Each fit's polish from its swarm's best ``positions`` (or, ``from_point``, from full
+    points of the polish's coordinates: an earlier stage's): the start's coordinates and
     NMSE, then (``polish`` not None) the solver's best point, its NMSE, steps and result."""
 
     def one(args):
         p, live, z = args
 
         def solve():
-            y, cost = p.start(z)
+            if from_point:
+                cost = jnp.sum(p.residual(z) ** 2)
+                y, cost = z, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+            else:
+                y, cost = p.start(z)
             if polish is None:
                 return y, cost
             return (y, cost, *_polish_one(p, y, cost, polish))
@@ -208,6 +225,29 @@ def _result_name(result, index) -> str:
         if member is not None and bool(np.asarray(result == member)[index]):
             return name.removeprefix("nonlinear_")
     return "unknown"
+
+
+def _stages(recordings, samplings) -> list[list[int]]:
+    """The frames each recording is fitted on, stage by stage (see `LONG_CYCLES`): one stage
+    of the whole recordings where none has more than `LONG_CYCLES` cycles; else windows
+    from the first frame of `FIRST_WINDOW_CYCLES` cycles (at least `MIN_WINDOW_FRAMES`
+    frames), growing `WINDOW_GROWTH`-fold, the last stage the whole recordings (a short
+    recording of the batch is whole at every stage)."""
+    cycles = [r.n_frames / r.fps / period for r, (_, period) in zip(recordings, samplings)]
+    whole = [r.n_frames for r in recordings]
+    if max(cycles) <= LONG_CYCLES:
+        return [whole]
+    stages, k = [], 0
+    while not stages or stages[-1] != whole:
+        span = FIRST_WINDOW_CYCLES * WINDOW_GROWTH**k
+        stages.append(
+            [
+                n if c <= LONG_CYCLES else min(n, max(MIN_WINDOW_FRAMES, math.ceil(span * n / c)))
+                for n, c in zip(whole, cycles)
+            ]
+        )
+        k += 1
+    return stages
 
 
 def _common_coordinates(problems) -> tuple[bool, ...]:
@@ -251,7 +291,10 @@ def fit_many(
     sum((dL)² + (dR)²) / sum(L² + R²), which is then the result's ``nmse``.
 
     The recordings may differ in length, frame rate and f0: they are padded to the longest
-    one's length bucket. ``model`` is one model for all, or one model per recording (of one
+    one's length bucket. A recording of more than `LONG_CYCLES` cycles is fitted by
+    continuation in its length: the swarm and a first polish on its first
+    `FIRST_WINDOW_CYCLES` cycles, then polishes on `WINDOW_GROWTH` times as many, up to the
+    whole recording. ``model`` is one model for all, or one model per recording (of one
     structure: the same terms; e.g. several starting points for one recording). Fit i's
     result depends only on its model, recording, hold, restarts and key
     ``jax.random.fold_in(key, i)``, not on the rest of the batch.
@@ -346,16 +389,36 @@ def fit_many(
     if len({p.fit_s for p, _, _ in prepared}) > 1:
         raise ValueError("fit_many: S is fitted for pixel recordings only; do not mix units")
     linear = _common_coordinates([p for p, _, _ in prepared])
-    problems = [dataclasses.replace(p, linear=linear) for p, _, _ in prepared]
     # restarts: fit i's restarts follow each other in the batch (i * restarts + r)
-    owner = np.repeat(np.arange(len(problems)), restarts)
-    problems = [problems[i] for i in owner]
+    owner = np.repeat(np.arange(len(prepared)), restarts)
     boxes = [(prepared[i][1], prepared[i][2]) for i in owner]
     # the batch is padded to a power of two with copies of fit 0 that are skipped, so that
     # batches of similar sizes share their programs
-    n_fits = len(problems)
+    n_fits = len(owner)
     pad = batch_bucket(max(n_fits, int(min_batch))) - n_fits
-    batch = jax.tree.map(_stack_strong, *problems, *problems[:1] * pad)
+
+    def stacked(fits):
+        fits = [dataclasses.replace(fits[i], linear=linear) for i in owner]
+        return fits, jax.tree.map(_stack_strong, *fits, *fits[:1] * pad)
+
+    problems, batch = stacked([p for p, _, _ in prepared])
+    # the earlier stages of a long recording's fit: its first cycles (see `LONG_CYCLES`)
+    windows = []
+    stages = _stages(recordings, samplings)
+    long_fits = np.array([n != r.n_frames for n, r in zip(stages[0], recordings)])
+    for frames in stages[:-1]:
+        cut = [(dataclasses.replace(s, n_frames=n), t) for (s, t), n in zip(samplings, frames)]
+        small = tuple(max(x) for x in zip(*(program_size(s) for s, _ in cut)))
+        parts = zip(models, recordings, cut, hold, bounds, frames)
+        windows.append(
+            stacked(
+                [
+                    prepare(m, r.crop(0.0, n / r.fps), params, s, t, b, h, small, per_fold)[0]
+                    for m, r, (s, t), h, b, n in parts
+                ]
+            )[1]
+        )
+    swarm_batch = windows[0] if windows else batch
     active = jnp.arange(n_fits + pad) < n_fits
     lowers = jnp.stack([lo for lo, _ in boxes] + [boxes[0][0]] * pad)
     uppers = jnp.stack([hi for _, hi in boxes] + [boxes[0][1]] * pad)
@@ -385,7 +448,7 @@ def fit_many(
     while done < swarm.iterations + 1:
         live = min(swarm.chunk, swarm.iterations + 1 - done)
         states, costs = _swarm_chunk(
-            batch, active, lowers, uppers, states, jnp.asarray(live), program, mesh, width
+            swarm_batch, active, lowers, uppers, states, jnp.asarray(live), program, mesh, width
         )
         traces.append(np.asarray(costs)[:, :live])
         now = time.perf_counter() - t_all
@@ -402,7 +465,22 @@ def fit_many(
 
     # Stage 2: the polish, one compiled solve for the whole batch.
     t1 = time.perf_counter()
-    polished = _polish_batch(batch, active, states.global_position, polish)
+    found = states.global_position
+    if not windows:
+        polished = _polish_batch(batch, active, found, polish)
+    else:
+        # a long recording's windows, each polish from the last one's point; the other
+        # recordings of the batch are polished once, from the swarm's best, as alone
+        long = jnp.asarray(np.r_[long_fits[owner], np.zeros(pad, bool)])
+        start, from_point = found, False
+        for stage in windows:
+            start = _polish_batch(stage, active & long, start, polish, from_point)
+            start, from_point = start[2 if polish else 0], True
+        whole = _polish_batch(batch, active & ~long, found, polish)
+        grown = _polish_batch(batch, active & long, start, polish, True)
+        polished = jax.tree.map(
+            lambda a, b: jnp.where(long.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), grown, whole
+        )
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
         y, cost, steps = (np.asarray(a) for a in polished[2:5])
