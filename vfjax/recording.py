@@ -211,6 +211,8 @@ def load_segments(
     return out
 
 
+#: A GAW table's area column, by preference: its unit in its name, or ("area") in the sidecar.
+AREA_COLUMNS = ("area_px", "area_mm2", "area_cm2", "area")
 #: Text inputs larger than this (bytes) are refused unread: a GAW table of a million frames
 #: takes about 30 MB.
 MAX_TEXT_BYTES = 256 * 2**20
@@ -285,7 +287,7 @@ def _read_table(path, sidecar, fps=None):
     if len(set(header)) != len(header):
         raise ValueError(f"{path}: repeated column names in the header {header}")
     unit = meta.get("area_unit")
-    for name in ("area_px", "area_mm2", "area_cm2", "area"):
+    for name in AREA_COLUMNS:
         if name in header:
             column = name
             if name != "area":

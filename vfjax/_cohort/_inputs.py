@@ -8,7 +8,7 @@ import io
 import pathlib
 import re
 
-from ..recording import MAX_TEXT_BYTES, Recording, check_frame_rate
+from ..recording import AREA_COLUMNS, MAX_TEXT_BYTES, Recording, check_frame_rate
 
 #: Suffixes of GAW tables (read with their JSON sidecar).
 TABLE_SUFFIXES = (".csv", ".tsv")
@@ -67,7 +67,6 @@ def _safe_id(relative: pathlib.PurePath) -> str:
 
 #: Bytes of a text file read to tell whether it is a recording.
 _SNIFF_BYTES = 1 << 16
-_AREA_COLUMNS = ("area_px", "area_mm2", "area_cm2", "area")
 
 
 def _first_line(path: pathlib.Path) -> str:
@@ -91,11 +90,19 @@ def _is_input(path: pathlib.Path) -> bool:
     if suffix in TABLE_SUFFIXES:
         delimiter = "\t" if suffix == ".tsv" else ","
         header = [c.strip() for c in _first_line(path).split(delimiter)]
-        return any(c in header for c in _AREA_COLUMNS)
+        return any(c in header for c in AREA_COLUMNS)
     if suffix in CONTOUR_SUFFIXES:
         tokens = _first_line(path).split()
-        return bool(tokens) and all(re.fullmatch(r"[0-9.eE+-]+", t) for t in tokens)
+        return bool(tokens) and all(_is_number(t) for t in tokens)
     return False
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def find_entries(folder, fps: float | None = None, exclude=None) -> list[CohortEntry]:

@@ -108,13 +108,12 @@ def _measured_columns(rec: Recording) -> dict:
     row = {"fps [Hz]": rec.fps, "frames": rec.n_frames, "unit": rec.unit}
     for column, field in DESCRIPTOR_COLUMNS:
         row[column] = float(getattr(d, field))
-    if rec.folds is not None or rec.edges is not None or rec.masks is not None:
-        try:
-            indices = asymmetry_indices(*fold_areas(rec), rec.fps)
-        except ValueError:  # a glottis that never spans two rows: no midline
-            pass
-        else:
-            row["ASI"], row["PAI"] = indices.asi, indices.pai
+    try:
+        indices = asymmetry_indices(*fold_areas(rec), rec.fps)
+    except ValueError:  # a GAW alone, or a glottis that never spans two rows: no midline
+        pass
+    else:
+        row["ASI"], row["PAI"] = indices.asi, indices.pai
     return row
 
 
