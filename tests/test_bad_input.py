@@ -6,6 +6,7 @@ import json
 import logging
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -188,17 +189,42 @@ CLI_CASES = {  # case: what the one-line message must say
 }
 
 
+def _main(*args, cwd, monkeypatch, capsys):
+    """The command line's `main` in this process (a new process costs seconds of imports):
+    (exit code, stderr). Its compilation cache is the session's (the one this process uses)
+    and the CPU devices stay as they are (JAX's backend runs already)."""
+    from vfjax.cli import main
+
+    jax.devices()
+    monkeypatch.chdir(cwd)
+    monkeypatch.delenv("VFJAX_NO_CACHE", raising=False)
+    monkeypatch.delenv("VFJAX_CORES", raising=False)
+    monkeypatch.setenv("VFJAX_CACHE_DIR", os.environ["VFJAX_TEST_SESSION_CACHE"])
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    return code, capsys.readouterr().err
+
+
+def _one_clear_line(case, code, stderr):
+    assert code == 2, (code, stderr[-2000:])
+    assert "Traceback" not in stderr, stderr[-2000:]
+    lines = [ln for ln in stderr.splitlines() if ln.startswith("vfjax")]
+    assert len(lines) == 1 and lines[0].startswith("vfjax: error: "), stderr
+    assert re.search(CLI_CASES[case], lines[0]), lines[0]
+
+
 @pytest.mark.parametrize("case", list(CLI_CASES))
-def test_cli_refuses_bad_input_with_one_clear_line(tmp_path, case):
+def test_cli_refuses_bad_input_with_one_clear_line(tmp_path, case, monkeypatch, capsys):
+    args = _write_case(tmp_path, case)
+    _one_clear_line(case, *_main(*args, cwd=tmp_path, monkeypatch=monkeypatch, capsys=capsys))
+
+
+@pytest.mark.parametrize("case", ["frames_missing", "zero_cores"])
+def test_the_command_refuses_bad_input_with_one_clear_line_and_code_2(tmp_path, case):
+    """The same through ``python -m vfjax`` in a process of its own: exit code 2."""
     args = _write_case(tmp_path, case)
     run = _cli(*args, cwd=tmp_path)
-    assert run.returncode == 2, (run.returncode, run.stderr[-2000:])
-    assert "Traceback" not in run.stderr, run.stderr[-2000:]
-    lines = [ln for ln in run.stderr.splitlines() if ln.startswith("vfjax")]
-    assert len(lines) == 1 and lines[0].startswith("vfjax: error: "), run.stderr
-    import re
-
-    assert re.search(CLI_CASES[case], lines[0]), lines[0]
+    _one_clear_line(case, run.returncode, run.stderr)
 
 
 def test_cli_reads_its_own_simulated_output(tmp_path):
@@ -322,6 +348,40 @@ def test_a_swallowed_interrupt_still_ends_the_run_and_its_staged_output(tmp_path
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1] == "vfjax: interrupted; the output folder is left as it was"
     assert 2.0 < waited < 20.0, waited  # the grace period (3 s), not a hang
+    assert not (tmp_path / "out").exists()
+    assert not list(tmp_path.glob(".out.partial-*"))
+
+
+def test_an_interrupt_inside_a_finaliser_ends_the_run_without_a_traceback(tmp_path):
+    """A Ctrl-C that lands in a garbage-collection callback or a finaliser (JAX runs one
+    on every collection) cannot unwind the stack: the command line's unraisable hook ends
+    the process at once, with the one line, code 130 and no traceback."""
+    script = textwrap.dedent(
+        """
+        import gc, sys, time
+        from vfjax.cli import _unraisable_hook
+        from vfjax.io import staged_output
+
+        sys.unraisablehook = _unraisable_hook(["out"], sys.unraisablehook)
+
+        def callback(phase, info):
+            raise KeyboardInterrupt
+
+        with staged_output("out") as stage:
+            (stage / "half.txt").write_text("written")
+            gc.callbacks.append(callback)
+            gc.collect()
+            time.sleep(30)
+        """
+    )
+    start = time.monotonic()
+    run = subprocess.run(
+        [sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True
+    )
+    assert run.returncode == 130, run.stderr
+    assert "Traceback" not in run.stderr
+    assert run.stderr.strip() == "vfjax: interrupted; the output folder is left as it was"
+    assert time.monotonic() - start < 20.0
     assert not (tmp_path / "out").exists()
     assert not list(tmp_path.glob(".out.partial-*"))
 
@@ -525,6 +585,7 @@ def test_integer_parameter_leaves_are_refused():
 
 
 # -------------------------------------------------------------------------------- fits
+@pytest.mark.xdist_group("n3_s_k")  # one worker compiles their swarm
 def test_a_fit_that_explains_nothing_is_reported_failed(tmp_path):
     rec = vfjax.Recording(area=_gaw() * 1e10 + 1.0, fps=FPS, name="huge")
     result = vfjax.fit(
@@ -543,6 +604,7 @@ def test_a_fit_that_explains_nothing_is_reported_failed(tmp_path):
     assert vfjax.FitResult.from_json(tmp_path / "f.json").failed
 
 
+@pytest.mark.xdist_group("n3_s_k")  # one worker compiles their swarm
 def test_a_fit_that_ends_at_its_box_edge_is_reported_failed():
     """A box that excludes the true K (1.05 to 1.3 times it): the fit ends on the box's edge."""
     truth = vfjax.preset("N3")

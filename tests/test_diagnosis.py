@@ -55,24 +55,33 @@ def test_a_term_without_off_values_is_refused():
         Candidate.of(int)
 
 
-def test_gap_sensitivity_is_the_camera_scale(shared_dir):
-    """d(observed px)/d(a_gap) = 100 S px per cm² wherever the GAW is open: analytic."""
+#: One worker fits the true N3 model's S once for the tests below (its programs are shared).
+_AT_THE_TRUTH = pytest.mark.xdist_group("n3_truth")
+
+
+def _fit_at_the_truth():
+    """The demo N3 recording without noise and a fit of its S alone from the true model."""
     rec = demo_recording("N3", noise_px=0.0)
     result = vfjax.fit(
         vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
     )
+    return rec, result
+
+
+@_AT_THE_TRUTH
+def test_gap_sensitivity_is_the_camera_scale(shared_dir):
+    """d(observed px)/d(a_gap) = 100 S px per cm² wherever the GAW is open: analytic."""
+    rec, result = _fit_at_the_truth()
     cols = sensitivities(result, [Candidate.of(GlottalGap)])[2][0][0, :, 0]
     open_ = result.fitted_gaw(rec) > 0
     assert np.allclose(cols[open_], 100.0 * result.params["S"], rtol=1e-12)
 
 
+@_AT_THE_TRUTH
 def test_candidates_sensitivities_from_one_extended_model():
     """All candidates' columns come from one model extended by all of them (each at its
     score point, the others off): the same as from the model extended by each alone."""
-    rec = demo_recording("N3", noise_px=0.0)
-    result = vfjax.fit(
-        vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
-    )
+    rec, result = _fit_at_the_truth()
     cands = [Candidate.of(k) for k in (GlottalGap, PressureModulation, MucosalDelay)]
     together = sensitivities(result, cands)[2]
     assert [c.shape for c in together] == [(1, 201, 1), (38, 201, 1), (1, 201, 1)]
@@ -121,11 +130,9 @@ def test_confirming_search_grows_with_the_candidates_parameters():
     assert plan.confirm_search(3) == (12, 150)  # a modulation: depth, frequency, phase
 
 
+@_AT_THE_TRUTH
 def test_bad_arguments_are_refused(shared_dir):
-    rec = demo_recording("N3", noise_px=0.0)
-    result = vfjax.fit(
-        vfjax.preset("N3"), rec, params=("S",), swarm=vfjax.Swarm(iterations=0), progress=False
-    )
+    rec, result = _fit_at_the_truth()
     with pytest.raises(ValueError, match="alpha"):
         vfjax.Criteria(alpha=0.0)
     with pytest.raises(ValueError, match="confirm_iterations"):

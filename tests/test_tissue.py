@@ -100,16 +100,24 @@ def _gaw(model, rel):
     return vfjax.simulate(scaled, FPS, 201, throw=False).area
 
 
+@eqx.filter_jit
+def _jacobian(model):
+    return jax.jacfwd(functools.partial(_gaw, model))(jnp.zeros(len(NAMES)))
+
+
+_run = eqx.filter_jit(_gaw)  # one program for every preset: the model is an argument
+
+
 def _jacobian_and_fd(model):
     """The forward-mode Jacobian and central differences, each run alone: in a batch the
     members' weights come from vectorised powers that differ from the scalar ones in the last
     bit, which can move an event across a grid point and change a run by the integrator's
     truncation error (1e-8 relative), as large as a difference quotient's numerator."""
-    gaw = functools.partial(_gaw, model)
-    jac = eqx.filter_jit(jax.jacfwd(gaw))(jnp.zeros(len(NAMES)))
-    run = eqx.filter_jit(gaw)
-    fd = [(run(FD_STEP * e) - run(-FD_STEP * e)) / (2 * FD_STEP) for e in jnp.eye(len(NAMES))]
-    return jac, jnp.stack(fd, axis=1)
+    fd = [
+        (_run(model, FD_STEP * e) - _run(model, -FD_STEP * e)) / (2 * FD_STEP)
+        for e in jnp.eye(len(NAMES))
+    ]
+    return _jacobian(model), jnp.stack(fd, axis=1)
 
 
 @pytest.mark.parametrize("name", ["N1", "N2", "N3", "N4"])

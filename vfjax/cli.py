@@ -624,6 +624,20 @@ def _interrupt_handler(outputs):
     return handler
 
 
+def _unraisable_hook(outputs, fallback):
+    """A `sys.unraisablehook`: a KeyboardInterrupt raised inside a finaliser or a library's
+    garbage-collection callback cannot unwind the stack, so it ends the process at once
+    (`_exit_interrupted`) instead of being printed with a traceback and lost; anything
+    else goes to ``fallback`` (the hook in place before)."""
+
+    def hook(unraisable):
+        if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
+            _exit_interrupted(outputs)
+        fallback(unraisable)
+
+    return hook
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit code: 0 done, 1 the fit or simulation failed
     (the reason on stderr), 2 bad input or arguments, 130 interrupted (Ctrl-C)."""
@@ -644,8 +658,10 @@ def main(argv=None) -> int:
         return 2
     outputs = [p for p in (getattr(args, n, None) for n in ("out", "output")) if p]
     previous = None
+    previous_hook = sys.unraisablehook
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGINT, _interrupt_handler(outputs))
+        sys.unraisablehook = _unraisable_hook(outputs, previous_hook)
     try:
         return args.func(args)
     except KeyboardInterrupt:
@@ -659,6 +675,7 @@ def main(argv=None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
+            sys.unraisablehook = previous_hook
 
 
 if __name__ == "__main__":
