@@ -307,6 +307,7 @@ def test_hidden_effect_is_found(case):
         assert got == pytest.approx(value, rel=0.2), (name, found)
 
 
+@pytest.mark.xdist_group("paper_fit")  # the paper model's S, K, C_f fit: compiled once
 def test_score_only_diagnosis_and_its_report(tmp_path):
     """Without refits the ranking is by score p-value; the report is written with its
     figures and names every candidate (hidden gap, N3, 1 px noise: the gap ranks first);

@@ -135,6 +135,7 @@ def _per_fold_nmse(total, folds):
     return float(np.sum(err) / np.sum(left**2 + right**2))
 
 
+@pytest.mark.xdist_group("paper_fit")  # the paper model's S, K, C_f fit: compiled once
 def test_a_fit_to_per_fold_areas_recovers_a_hidden_asymmetry(tmp_path):
     """N1 with a hidden asymmetry Q = 0.9 (right fold 10 % slower) and 1 px noise, per-fold
     areas measured with their own noise: the total GAW alone barely tells (the paper's

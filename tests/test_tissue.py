@@ -142,6 +142,7 @@ def test_a_step_too_coarse_for_the_fastest_mode_is_refused():
     assert bool(vfjax.simulate(model, 1000.0, 50, substeps=8).complete)
 
 
+@pytest.mark.xdist_group("paper_fit")  # the paper model's S, K, C_f fit: compiled once
 def test_a_fit_with_the_term_recovers_a_hidden_power_law_tissue():
     """N3 with hidden power-law tissue (eta_pl 150, alpha 0.5) and 1 px noise: the paper's
     model leaves a misfit far above the noise; with the term (its order held at the truth,
