@@ -241,23 +241,24 @@ def test_cli_reads_its_own_simulated_output(tmp_path):
     np.testing.assert_allclose(table["model_area_px"], signed, atol=1e-6)
 
 
-def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(tmp_path, shared_dir):
+def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(
+    tmp_path, shared_dir, monkeypatch, capsys
+):
     """`vfjax fit` takes contour files as `vfjax diagnose` does; a fit that explains nothing
     (areas of 1e12 px) exits 1 with the reason on stderr, and its JSON and report say so."""
     contour = shared_dir / "data" / "real" / "FN003_segdata.txt"
     quick = ("--iterations", "5", "--restarts", "1")
-    run = _cli("fit", contour, "--fps", "8000", "--out", "c", *quick, cwd=tmp_path)
-    assert run.returncode in (0, 1) and "Traceback" not in run.stderr, run.stderr
+    here = {"cwd": tmp_path, "monkeypatch": monkeypatch, "capsys": capsys}
+    code, err = _main("fit", contour, "--fps", "8000", "--out", "c", *quick, **here)
+    assert code in (0, 1) and "Traceback" not in err, err
     status = json.loads((tmp_path / "c" / "FN003_fit.json").read_text())["status"]
-    assert (status == "successful") == (run.returncode == 0)
+    assert (status == "successful") == (code == 0)
     # 120 frames: the contour file's length bucket, so its compiled programs serve again
     rows = [f"{i},{i / FPS:.8f},{a * 1e10 + 1:g}" for i, a in enumerate(_gaw(120))]
-    run = _cli("fit", _table(tmp_path, rows=rows), *quick, cwd=tmp_path)
-    assert run.returncode == 1, run.stderr
-    assert "Traceback" not in run.stderr
-    assert (
-        "the fit failed: NMSE" in run.stderr and "no better than the recording's mean" in run.stderr
-    )
+    code, err = _main("fit", _table(tmp_path, rows=rows), *quick, **here)
+    assert code == 1, err
+    assert "Traceback" not in err
+    assert "the fit failed: NMSE" in err and "no better than the recording's mean" in err
     saved = json.loads((tmp_path / "vfjax_output" / "rec_fit.json").read_text())
     assert saved["status"] == "worse_than_mean"
 
