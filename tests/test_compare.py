@@ -1,19 +1,13 @@
 """Comparison of a fit with its measurement: phases, error shares, descriptors, words."""
 
 import numpy as np
-import pytest
 
 import vfjax
 from vfjax import fit, initial_model
 from vfjax.compare import compare, noise_level, plot_comparison
 from vfjax.recording import Recording
 
-#: The paper model's S, K, C_f, t_c fit of a 201-frame recording, as notebook 02 fits: one
-#: worker compiles it, and the notebook's kernel loads it from the session's cache.
-_PAPER_FIT = pytest.mark.xdist_group("paper_fit_tc")
 
-
-@_PAPER_FIT
 def test_gap_is_described_in_words(shared_dir):
     rec = vfjax.load_recording(shared_dir / "data" / "synthetic" / "syn_gap.csv")
     result = fit(initial_model(rec), rec, params=("S", "K", "C_f", "t_c"), progress=False)
@@ -29,7 +23,6 @@ def test_gap_is_described_in_words(shared_dir):
     assert plot_comparison(c) is not None
 
 
-@_PAPER_FIT
 def test_perfect_fit_reports_no_failure():
     # N3 closes with a clear margin; the recording starts 3 ms after the fit's warm-up (within
     # its time-shift range, so the truth is in the search space)

@@ -13,15 +13,14 @@ def test_there_are_notebooks():
     assert NOTEBOOKS, "notebooks/ is empty"
 
 
-#: Notebooks run by the worker of tests that compile their programs, after them, so that the
-#: notebook's kernel finds those programs in the session's compilation cache: 03 diagnoses a
-#: recording of the shared tests' length bucket with the default candidates; 02 fits the
-#: paper model's S, K, C_f and t_c as test_compare.py does.
-_AFTER = {"02_your_own_effect.ipynb": "paper_fit_tc", "03_missing_physics.ipynb": "diagnosis"}
+#: Notebooks that diagnose a recording of the shared tests' length bucket with the default
+#: candidates: run by the worker of the diagnosis tests, after them, so that the notebook's
+#: kernel finds their compiled programs in the session's compilation cache.
+_AFTER_DIAGNOSIS = ("03_missing_physics.ipynb",)
 
 
 def _marks(path):
-    return [pytest.mark.xdist_group(_AFTER[path.name])] if path.name in _AFTER else []
+    return [pytest.mark.xdist_group("diagnosis")] if path.name in _AFTER_DIAGNOSIS else []
 
 
 @pytest.mark.parametrize("path", [pytest.param(p, id=p.name, marks=_marks(p)) for p in NOTEBOOKS])
