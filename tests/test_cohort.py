@@ -201,6 +201,11 @@ def test_a_folder_holds_only_its_recordings(shared_dir, tmp_path):
     assert 0.0 < contour["ASI"] <= 1.0 and 0.0 <= contour["PAI"] < 0.5
     with pytest.raises(ValueError, match="disagrees with the sidecar"):
         load_entry(dataclasses.replace(entries[0], fps=8000.0))
+    # a header in quotes, as a spreadsheet writes it: the scan reads it as the loader does
+    (tmp_path / "quoted").mkdir()
+    (tmp_path / "quoted" / "b.csv").write_text('"area_px"\n' + "\n".join(map(str, rec.area)))
+    (quoted,) = vfjax.find_entries(tmp_path / "quoted", fps=4000.0)
+    np.testing.assert_allclose(load_entry(quoted).area, loaded[0].area, rtol=1e-12)
 
 
 @pytest.mark.xdist_group("cohort")  # one run of the serial cohort

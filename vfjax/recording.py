@@ -257,6 +257,11 @@ def read_sidecar(path) -> dict:
     return meta
 
 
+def table_delimiter(path) -> str:
+    """The field separator of a GAW table: a tab for ``.tsv`` and ``.tab``, else a comma."""
+    return "\t" if pathlib.Path(path).suffix.lower() in (".tsv", ".tab") else ","
+
+
 def _read_table(path, sidecar, fps=None):
     """The sidecar (or ``{"fps": fps}`` for a table without one), the area unit and the
     table's runs of consecutive frames, as [(first frame, last frame, areas)]."""
@@ -275,9 +280,8 @@ def _read_table(path, sidecar, fps=None):
             )
     fps = meta["fps"]
     text = _read_text(path, "GAW table (CSV or TSV)")
-    delimiter = "\t" if path.suffix.lower() in (".tsv", ".tab") else ","
     try:
-        rows = list(csv.reader(io.StringIO(text, newline=""), delimiter=delimiter))
+        rows = list(csv.reader(io.StringIO(text, newline=""), delimiter=table_delimiter(path)))
     except csv.Error as err:
         raise ValueError(f"{path}: not a readable table: {err}") from None
     rows = [r for r in rows if any(cell.strip() for cell in r)]

@@ -8,7 +8,13 @@ import io
 import pathlib
 import re
 
-from ..recording import AREA_COLUMNS, MAX_TEXT_BYTES, Recording, check_frame_rate
+from ..recording import (
+    AREA_COLUMNS,
+    MAX_TEXT_BYTES,
+    Recording,
+    check_frame_rate,
+    table_delimiter,
+)
 
 #: Suffixes of GAW tables (read with their JSON sidecar).
 TABLE_SUFFIXES = (".csv", ".tsv")
@@ -87,9 +93,12 @@ def _is_input(path: pathlib.Path) -> bool:
     suffix = path.suffix.lower()
     if suffix in VIDEO_SUFFIXES:
         return True
-    if suffix in TABLE_SUFFIXES:
-        delimiter = "\t" if suffix == ".tsv" else ","
-        header = [c.strip() for c in _first_line(path).split(delimiter)]
+    if suffix in TABLE_SUFFIXES:  # the header read as the loader reads it (quotes and all)
+        try:
+            cells = next(csv.reader([_first_line(path)], delimiter=table_delimiter(path)), [])
+        except csv.Error:
+            return False
+        header = [c.strip() for c in cells]
         return any(c in header for c in AREA_COLUMNS)
     if suffix in CONTOUR_SUFFIXES:
         tokens = _first_line(path).split()
