@@ -614,11 +614,12 @@ def simulate(
     within one simulation, and moves nothing else (so a fit can read every shift from one
     simulation's dense output).
 
-    Jit-compiled, once per model structure and per value of the arguments that size the
-    integration (``fps``, ``n_frames``, ``substeps``, ``t_start``, ``max_time_shift``,
-    ``max_events``). The model's leaves, ``time_shift`` and the initial state are data: new
-    values reuse the compiled program. Differentiable (forward and reverse) in every array
-    leaf of ``model`` and in ``time_shift``; vmappable over models with batched leaves.
+    Jit-compiled, once per model structure, frame count and iteration budget (the grid's
+    steps over the simulated time plus ``max_events``, rounded up to a multiple of 16). The
+    frame rate, step, ``t_start``, ``max_time_shift``, the model's leaves, ``time_shift``
+    and the initial state are data: new values within the same budget reuse the program.
+    Differentiable (forward and reverse) in every array leaf of ``model`` and in
+    ``time_shift``; vmappable over models with batched leaves.
 
     Arguments:
         model: the model (`vfjax.paper_model`, `vfjax.preset`, ...).
@@ -709,18 +710,20 @@ def simulate(
                 "frames must lie in the integrated interval (raise max_time_shift)"
             )
     x_init = None if initial_displacement is None else jnp.asarray(initial_displacement, float)
+    # the frame rate, step, step count, start and shift range are data (traced): only the
+    # frame count, the iteration budget and the mode shape the compiled program
     sim = _simulate(
         model,
         time_shift,
         x_init,
         jnp.asarray(initial_velocity, dtype=float),
-        fps=fps,
+        jnp.asarray(fps, dtype=float),
+        jnp.asarray(h, dtype=float),
+        jnp.asarray(n_steps, dtype=jnp.int32),
+        jnp.asarray(t_start, dtype=float),
+        jnp.asarray(max_time_shift, dtype=float),
         n_frames=n_frames,
-        h=h,
-        n_steps=n_steps,
         n_iter=n_iter,
-        t_start=t_start,
-        max_time_shift=max_time_shift,
         reverse_mode=bool(reverse_mode),
     )
     if throw:
@@ -741,14 +744,14 @@ def _simulate(
     time_shift,
     x_init,
     v_init,
-    *,
     fps,
-    n_frames,
     h,
     n_steps,
-    n_iter,
     t_start,
     max_time_shift,
+    *,
+    n_frames,
+    n_iter,
     reverse_mode,
 ) -> Simulation:
     x_init = model.contact_displacement if x_init is None else x_init

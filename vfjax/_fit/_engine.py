@@ -177,22 +177,28 @@ def _particle_mesh(swarm: Swarm):
 # each fit's solve is already batched over its Jacobian's columns, a vmapped solve would run
 # every fit for as many steps as the slowest one, and each fit then computes exactly what it
 # computes alone (a vmapped batch rounds differently from a batch of one). Padding fits
-# (``active`` False) are skipped.
+# (``active`` False) are skipped. Where a fit starts (its swarm's best or an earlier stage's
+# point) is data: one program serves the first polish and every later stage of a length
+# bucket.
 @eqx.filter_jit
-def _polish_batch(batch, active, positions, polish: Polish | None, from_point: bool = False):
-    """Each fit's polish from its swarm's best ``positions`` (or, ``from_point``, from full
-    points of the polish's coordinates: an earlier stage's): the start's coordinates and
-    NMSE, then (``polish`` not None) the solver's best point, its NMSE, steps and result."""
+def _polish_batch(batch, active, positions, points, from_point, polish: Polish | None):
+    """Each fit's polish from its swarm's best ``positions`` or, where ``from_point``, from
+    ``points`` (full points of the polish's coordinates: an earlier stage's): the start's
+    coordinates and NMSE, then (``polish`` not None) the solver's best point, its NMSE, steps
+    and result."""
 
     def one(args):
-        p, live, z = args
+        p, live, z, y_given, given = args
+
+        def swarm_start():
+            return p.start(z)
+
+        def point_start():
+            cost = jnp.sum(p.residual(y_given) ** 2)
+            return y_given, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
         def solve():
-            if from_point:
-                cost = jnp.sum(p.residual(z) ** 2)
-                y, cost = z, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
-            else:
-                y, cost = p.start(z)
+            y, cost = jax.lax.cond(given, point_start, swarm_start)
             if polish is None:
                 return y, cost
             return (y, cost, *_polish_one(p, y, cost, polish))
@@ -207,7 +213,7 @@ def _polish_batch(batch, active, positions, polish: Polish | None, from_point: b
         )
         return jax.lax.cond(live, solve, lambda: skip)
 
-    return jax.lax.map(one, (batch, active, positions))
+    return jax.lax.map(one, (batch, active, positions, points, from_point))
 
 
 def _result_name(result, index) -> str:
@@ -466,21 +472,21 @@ def fit_many(
     # Stage 2: the polish, one compiled solve for the whole batch.
     t1 = time.perf_counter()
     found = states.global_position
+    # a polish point: the swarm's coordinates, the time shift and, if fitted, log S
+    n_y = found.shape[1] + 1 + (1 if problems[0].fit_s else 0)
+    no_points = jnp.zeros((found.shape[0], n_y), found.dtype)
+    from_swarm = jnp.zeros(found.shape[0], bool)
     if not windows:
-        polished = _polish_batch(batch, active, found, polish)
+        polished = _polish_batch(batch, active, found, no_points, from_swarm, polish)
     else:
         # a long recording's windows, each polish from the last one's point; the other
         # recordings of the batch are polished once, from the swarm's best, as alone
         long = jnp.asarray(np.r_[long_fits[owner], np.zeros(pad, bool)])
-        start, from_point = found, False
+        points, given = no_points, from_swarm
         for stage in windows:
-            start = _polish_batch(stage, active & long, start, polish, from_point)
-            start, from_point = start[2 if polish else 0], True
-        whole = _polish_batch(batch, active & ~long, found, polish)
-        grown = _polish_batch(batch, active & long, start, polish, True)
-        polished = jax.tree.map(
-            lambda a, b: jnp.where(long.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), grown, whole
-        )
+            start = _polish_batch(stage, active & long, found, points, given, polish)
+            points, given = start[2 if polish else 0], long
+        polished = _polish_batch(batch, active, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
         y, cost, steps = (np.asarray(a) for a in polished[2:5])
