@@ -62,6 +62,7 @@ from .integrator import (  # noqa: E402
     Simulation,
     SimulationError,
     fold_displacements,
+    glottal_flow,
     simulate,
     simulated_fold_areas,
 )
@@ -91,6 +92,7 @@ from .terms import (  # noqa: E402
     MucosalDelay,
     PowerLawTissue,
     PressureModulation,
+    SourceTractInertance,
     StiffnessJitter,
     TanhDamping,
     TimingJitter,
@@ -139,6 +141,7 @@ __all__ = [
     "MucosalDelay",
     "PowerLawTissue",
     "PressureModulation",
+    "SourceTractInertance",
     "DenseOutput",
     "Elastic",
     "FitResult",
@@ -187,5 +190,6 @@ __all__ = [
     "simulate",
     "simulated_fold_areas",
     "fold_displacements",
+    "glottal_flow",
     "units",
 ]

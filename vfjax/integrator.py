@@ -28,6 +28,7 @@ of that. A while loop has no reverse mode, so derivatives (forward and reverse) 
 through a `lax.scan` of the bound's length that computes the same values.
 """
 
+import dataclasses
 import functools
 import math
 from typing import NamedTuple
@@ -44,6 +45,8 @@ from ._hermite import hermite, hermite_root, hermite_slope
 from ._sampling import DEFAULT_SUBSTEPS, Sampling, length_bucket
 from .model import VocalFoldModel
 from .terms.base import AbstractFoldPair, AbstractStatefulTerm
+from .terms.paper import BernoulliForce
+from .terms.tract import SourceTractInertance
 
 #: Event budget per second of simulated time. A glottal cycle has up to 7 events, so the
 #: default budget covers f0 up to ~570 Hz; beyond it `Simulation.complete` may turn False
@@ -208,6 +211,40 @@ def simulated_fold_areas(model: VocalFoldModel, simulation: Simulation) -> tuple
     share = left_share(model, simulation.dense, simulation.time, simulation.displacement)
     area = simulation.area
     return area * share, area * (1.0 - share)
+
+
+def glottal_flow(model: VocalFoldModel, simulation: Simulation, t_start: float = 0.0) -> Array:
+    """The glottal volume flow Q (cm³/s) at the frames of ``simulation`` (a run of
+    ``model``): the paper's Bernoulli flow with viscous loss (eq. 7) at the transglottal
+    drop P_s - P_e, with P_e the supraglottal pressure of a `vfjax.SourceTractInertance`
+    (its internal state; 0 without one); 0 while the folds are closed.
+
+    Arguments:
+        model: the simulated model (with a `BernoulliForce` term).
+        simulation: its `Simulation`.
+        t_start: the simulation's ``t_start`` (s), the time origin of pressure terms
+            (`vfjax.PressureModulation`); frames of a fit: its ``sampling.warmup``.
+    """
+    aero = model.term(BernoulliForce)
+    if aero is None:
+        raise ValueError("the model has no BernoulliForce term: it has no glottal flow")
+    x, v = simulation.displacement, simulation.velocity
+    area = model.subject.area(x)
+    flow = (simulation.phase != phases.CLOSED) & (area > 0)
+    xc = model.subcritical_displacement()
+    ctx = model.context(simulation.time - t_start, x, v, flow, x <= xc, v < 0, xc)
+    ctx = dataclasses.replace(ctx, area=jnp.where(flow, area, 0.0))
+    p_e = 0.0
+    stateful = [t for t in model.terms if isinstance(t, AbstractStatefulTerm)]
+    for term, z in zip(stateful, simulation.dense.internal_state(simulation.time)):
+        if isinstance(term, SourceTractInertance):
+            p_e = z
+    drop = jnp.maximum(ctx.pressure - p_e, 0.0)
+    s = model.subject
+    u = aero.particle_velocity(
+        ctx.area, drop, s.air_density, s.air_viscosity, s.thickness, s.length
+    )
+    return jnp.where(flow, ctx.area * u, 0.0)
 
 
 # The regime flags travel in the scan's carry as bits of one integer: one array to update

@@ -250,6 +250,11 @@ class VocalFoldModel(eqx.Module):
             mass=s.mass,
             length=s.length,
             thickness=s.thickness,
+            area=s.area(x),
+            area_rate=2.0 * s.length * v,
+            air_density=s.air_density,
+            air_viscosity=s.air_viscosity,
+            aerodynamics=aero,
         )
 
     def acceleration(self, t, x, v, flow, inner, closing, xc, pressure=None, state=()) -> Array:

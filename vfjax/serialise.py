@@ -16,7 +16,13 @@ import numpy as np
 from ._validate import check_schema
 from .model import VocalFoldModel
 from .subject import Subject
-from .terms import CATALOGUE, ClosureJitter, LeftRightAsymmetry, PowerLawTissue
+from .terms import (
+    CATALOGUE,
+    ClosureJitter,
+    LeftRightAsymmetry,
+    PowerLawTissue,
+    SourceTractInertance,
+)
 from .terms.base import AbstractTerm
 from .terms.paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
 
@@ -25,6 +31,7 @@ BUILTIN_TERMS: tuple[type[AbstractTerm], ...] = (
     *(Elastic, TanhDamping, BernoulliForce, FlowSeparation, ClosureHold),
     *CATALOGUE,
     PowerLawTissue,
+    SourceTractInertance,
     LeftRightAsymmetry,
     ClosureJitter,
 )

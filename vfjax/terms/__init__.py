@@ -6,6 +6,7 @@
 - `variability`: cycle-to-cycle variability (closure, stiffness and amplitude jitter).
 - `tissue`: power-law (fractional) viscoelastic tissue, a term with internal states.
 - `folds`: left-right asymmetry, a left and a right fold in place of one.
+- `tract`: source-tract interaction, the vocal tract's inertance loading the glottal flow.
 """
 
 from .base import (
@@ -23,6 +24,7 @@ from .effects import CATALOGUE, CubicStiffness, GlottalGap, MucosalDelay, Pressu
 from .folds import LeftRightAsymmetry
 from .paper import BernoulliForce, ClosureHold, Elastic, FlowSeparation, TanhDamping
 from .tissue import PowerLawTissue, grunwald_letnikov
+from .tract import SourceTractInertance
 from .variability import AmplitudeJitter, ClosureJitter, StiffnessJitter, TimingJitter
 
 __all__ = [
@@ -48,6 +50,7 @@ __all__ = [
     "Context",
     "Elastic",
     "FlowSeparation",
+    "SourceTractInertance",
     "StiffnessJitter",
     "TimingJitter",
     "TanhDamping",

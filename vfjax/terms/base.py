@@ -109,6 +109,11 @@ class Context(eqx.Module):
         aero_force: Bernoulli aerodynamic force F_a at this instant (dyne), 0 without flow.
         stiffness: linear stiffness K of the model's elastic term (dyne/cm), 0 if none.
         mass, length, thickness: the subject's M (g), l (cm) and d (cm).
+        area: glottal area A = A_g0 + 2 l x (cm²) of the folds' mean displacement.
+        area_rate: dA/dt = 2 l v (cm²/s) of the folds' mean velocity.
+        air_density, air_viscosity: the subject's rho (g/cm³) and mu (poise).
+        aerodynamics: the model's `BernoulliForce` term (its flow and force at any area and
+            pressure drop), or None.
     """
 
     t: ArrayLike
@@ -125,6 +130,11 @@ class Context(eqx.Module):
     mass: ArrayLike
     length: ArrayLike
     thickness: ArrayLike
+    area: ArrayLike
+    area_rate: ArrayLike
+    air_density: ArrayLike
+    air_viscosity: ArrayLike
+    aerodynamics: "AbstractForce | None"
 
 
 class AbstractForce(AbstractTerm):
