@@ -5,8 +5,8 @@ a) `vfjax diagnose` of the shared syn_gap and syn_base, each from a fresh proces
 b) recordings of five lengths (101 to 2001 frames) and three frame rates diagnosed in one
    process (`vfjax.investigate`, one round): compilations per recording, counted from JAX's
    compile events, and the total time;
-c) `fit_many` of 16 recordings against a loop of `fit` over them (fits per minute), and
-   one compiled fit's wall time.
+c) `fit_many` of 16 recordings against a loop of `fit` over them (fits per minute), one
+   compiled fit's wall time, and the swarm's and the polish's share of each.
 
 Run: python benchmarks/engine.py [--only a|b|c] [--quick]
 """
@@ -137,6 +137,12 @@ def part_c():
         f"{60 * len(recs) / t_loop:.0f} fits/min ({t_loop:.1f} s); ratio {t_loop / t_many:.2f}"
     )
     print(f"  one compiled fit: median {np.median(times):.2f} s (min {min(times):.2f} s)")
+    stages = [(r.timings["pso_s"], r.timings["lm_s"]) for r in loop]
+    print(
+        f"  swarm / polish: fit_many {many[0].timings['pso_s']:.2f} s / "
+        f"{many[0].timings['lm_s']:.2f} s; one fit (median) "
+        f"{np.median([a for a, _ in stages]):.2f} s / {np.median([b for _, b in stages]):.2f} s"
+    )
     print(
         f"  median NMSE fit_many {np.median([r.nmse for r in many]):.4e}, "
         f"loop {np.median([r.nmse for r in loop]):.4e}"

@@ -203,3 +203,16 @@ def test_the_diagnosis_finds_a_hidden_tract_inertance():
     assert low <= ADULT <= high
     floor = (1.0 + 1.0 / 12.0) / float(np.mean(rec.area**2))
     assert refit.result.nmse < 1.5 * floor
+
+
+def test_the_command_line_offers_the_inertance_beside_the_catalogue(capsys):
+    from vfjax.cli import build_parser, diagnosis_candidates
+    from vfjax.diagnosis import DEFAULT_CANDIDATES
+
+    args = build_parser().parse_args(["diagnose", "r.csv", "--also", "SourceTractInertance"])
+    assert diagnosis_candidates(args.also) == [*DEFAULT_CANDIDATES, SourceTractInertance]
+    assert diagnosis_candidates([]) is None  # the catalogue's defaults
+    with pytest.raises(SystemExit) as exit_:
+        build_parser().parse_args(["diagnose", "r.csv", "--also", "print"])
+    assert exit_.value.code == 2
+    assert "invalid choice: 'print'" in capsys.readouterr().err

@@ -234,6 +234,26 @@ def _report_failure(result, what: str) -> int:
     return 1
 
 
+#: Effects that `vfjax diagnose --also` offers beside the catalogue's default candidates (by
+#: name: the command line builds no class from its input).
+EXTRA_CANDIDATES = ("PowerLawTissue", "SourceTractInertance")
+
+
+def diagnosis_candidates(also) -> list | None:
+    """The candidate effects of ``vfjax diagnose``: the catalogue's defaults (None) or, with
+    ``--also`` names (of `EXTRA_CANDIDATES`), the catalogue's classes and those."""
+    if not also:
+        return None
+    import vfjax
+
+    from ._diagnosis import DEFAULT_CANDIDATES
+
+    unknown = sorted(set(also) - set(EXTRA_CANDIDATES))
+    if unknown:
+        raise ValueError(f"--also: unknown effect {unknown[0]!r}")
+    return list(DEFAULT_CANDIDATES) + [getattr(vfjax, name) for name in dict.fromkeys(also)]
+
+
 def cmd_diagnose(args) -> int:
     """Fit, diagnose, extend (up to --rounds effects) and write the report."""
     import matplotlib
@@ -258,6 +278,7 @@ def cmd_diagnose(args) -> int:
             criteria=Criteria(alpha=args.alpha),
             calibration=Calibration(replicates=args.replicates, seed=args.seed),
             swarm=Swarm(iterations=args.iterations),
+            candidates=diagnosis_candidates(args.also),
             progress=True,
         )
         write_report(study, rec, out)
@@ -522,6 +543,15 @@ def build_parser() -> argparse.ArgumentParser:
         "sidecar states subglottal_pressure_dyne_per_cm2)",
     )
     dg.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from")
+    dg.add_argument(
+        "--also",
+        action="append",
+        choices=sorted(EXTRA_CANDIDATES),
+        default=[],
+        metavar="EFFECT",
+        help="offer this effect too, beside the catalogue's (repeatable; one of: "
+        f"{', '.join(sorted(EXTRA_CANDIDATES))})",
+    )
     _diagnosis_arguments(dg)
     dg.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     dg.set_defaults(func=cmd_diagnose)
