@@ -212,6 +212,8 @@ def test_the_command_line_offers_the_inertance_beside_the_catalogue(capsys):
     args = build_parser().parse_args(["diagnose", "r.csv", "--also", "SourceTractInertance"])
     assert diagnosis_candidates(args.also) == [*DEFAULT_CANDIDATES, SourceTractInertance]
     assert diagnosis_candidates([]) is None  # the catalogue's defaults
+    cohort = build_parser().parse_args(["cohort", "d", "--also", "SourceTractInertance"])
+    assert cohort.also == ["SourceTractInertance"]
     with pytest.raises(SystemExit) as exit_:
         build_parser().parse_args(["diagnose", "r.csv", "--also", "print"])
     assert exit_.value.code == 2

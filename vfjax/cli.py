@@ -304,6 +304,7 @@ def cmd_cohort(args) -> int:
         swarm=Swarm(size=args.particles, iterations=args.iterations),
         criteria=Criteria(alpha=args.alpha),
         calibration=Calibration(replicates=args.replicates, seed=args.seed),
+        candidates=diagnosis_candidates(args.also),
         batch=args.batch,
         seed=args.seed,
     )
@@ -443,7 +444,8 @@ def cmd_simulate(args) -> int:
 
 def _diagnosis_arguments(parser) -> None:
     """The options of a diagnosis (``diagnose``, ``cohort``): the first fit's restarts and
-    swarm, the rounds, the level and the null recordings."""
+    swarm, the rounds, the level, the null recordings and the effects offered beside the
+    catalogue's."""
     parser.add_argument(
         "--restarts",
         type=int,
@@ -468,6 +470,15 @@ def _diagnosis_arguments(parser) -> None:
         "--seed", type=int, default=0, help="seed of the null recordings (a cohort's fits too)"
     )
     parser.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+    parser.add_argument(
+        "--also",
+        action="append",
+        choices=sorted(EXTRA_CANDIDATES),
+        default=[],
+        metavar="EFFECT",
+        help="offer this effect too, beside the catalogue's (repeatable; one of: "
+        f"{', '.join(sorted(EXTRA_CANDIDATES))})",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -543,15 +554,6 @@ def build_parser() -> argparse.ArgumentParser:
         "sidecar states subglottal_pressure_dyne_per_cm2)",
     )
     dg.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from")
-    dg.add_argument(
-        "--also",
-        action="append",
-        choices=sorted(EXTRA_CANDIDATES),
-        default=[],
-        metavar="EFFECT",
-        help="offer this effect too, beside the catalogue's (repeatable; one of: "
-        f"{', '.join(sorted(EXTRA_CANDIDATES))})",
-    )
     _diagnosis_arguments(dg)
     dg.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     dg.set_defaults(func=cmd_diagnose)
