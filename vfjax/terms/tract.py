@@ -13,9 +13,9 @@ Q_qs(A, P) = A u(A, P) at the drop, the equation is exactly
 
     dP_e/dt = (P_1 - P_e) / tau,   P_1 = I_t (dQ_qs/dA) dA/dt,   tau = I_t (dQ_qs/dP),
 
-with dA/dt = 2 l v and both slopes at the drop P_s - P_e (a subglottal pressure that varies in
-time adds dP_s/dt, which is left out: a modulation at a few Hz changes it 10⁴ times more
-slowly than P_e relaxes). P_e relaxes towards P_1, the pressure of the quasi-steady flow's
+with dA/dt = 2 l v and both slopes at the drop P_s - P_e. (A subglottal pressure that varies
+in time adds dP_s/dt to the rate, i.e. tau dP_s/dt to P_1, which is left out: about 0.001 P_s
+for a 10 % modulation at 8 Hz, under 1 % of P_1.) P_e relaxes towards P_1, the pressure of the quasi-steady flow's
 rate of change, within the flow's time constant tau: for I_t = 0.007, 0.12 ms (N1) to
 0.24 ms (N3) at the presets' widest openings, 1.5-5 % of a period. Near contact, where the
 viscous loss grows as 1 / A³, tau falls below a microsecond, beyond the reach of an explicit
