@@ -15,12 +15,13 @@ Q_qs(A, P) = A u(A, P) at the drop, the equation is exactly
 
 with dA/dt = 2 l v and both slopes at the drop P_s - P_e. (A subglottal pressure that varies
 in time adds dP_s/dt to the rate, i.e. tau dP_s/dt to P_1, which is left out: about 0.001 P_s
-for a 10 % modulation at 8 Hz, under 1 % of P_1.) P_e relaxes towards P_1, the pressure of the quasi-steady flow's
-rate of change, within the flow's time constant tau: for I_t = 0.007, 0.12 ms (N1) to
-0.24 ms (N3) at the presets' widest openings, 1.5-5 % of a period. Near contact, where the
-viscous loss grows as 1 / A³, tau falls below a microsecond, beyond the reach of an explicit
-RK4 step at camera rates; there the flow is slaved to the opening, and the state relaxes at
-no more than 1 / `TAU_MIN` (50 us; P_1 vanishes there with the flow's slope dQ/dA ~ A²).
+for a 10 % modulation at 8 Hz, under 1 % of P_1.) P_e relaxes towards P_1, the pressure of
+the quasi-steady flow's rate of change, within the flow's time constant tau: for I_t = 0.007,
+0.12 ms (N1) to 0.24 ms (N3) at the presets' widest openings, 1.5-5 % of a period. Near
+contact, where the viscous loss grows as 1 / A³, tau falls below a microsecond, beyond the
+reach of an explicit RK4 step at camera rates; there the flow is slaved to the opening, and
+the state relaxes at no more than 1 / `TAU_MIN` (50 us; P_1 vanishes there with the flow's
+slope dQ/dA ~ A²).
 While the glottis is closed there is no flow and P_e relaxes to 0 at that rate.
 
 The wall pressures of eqs. 10-11 are measured from the subglottal and the supraglottal side,
