@@ -25,6 +25,7 @@ from vfjax import (
     PressureModulation,
     search_range,
 )
+from vfjax._diagnosis._candidates import offered
 from vfjax._diagnosis._score import _estimate, _hac, sensitivities
 from vfjax.datasets import demo_recording
 from vfjax.diagnosis import Candidate, default_candidates
@@ -46,6 +47,15 @@ def test_candidates_follow_the_terms_declarations():
     off = vfjax.preset("N1").with_term(FlowSeparation(fs_strength=0.0)).without(ClosureHold)
     names = [c.name for c in default_candidates(off)]
     assert names[-2:] == ["FlowSeparation", "ClosureHold"]
+    # a listed candidate (investigate's, vfjax diagnose --also) is offered alike: an active
+    # term is left out, one at its off-value is offered as the model's own term
+    gapped = vfjax.preset("N1").with_term(GlottalGap(a_gap=0.002))
+    listed = offered(
+        gapped.with_term(FlowSeparation(fs_strength=0.0)),
+        [GlottalGap, FlowSeparation, Candidate.of(MucosalDelay)],
+    )
+    assert [c.name for c in listed] == ["FlowSeparation", "MucosalDelay"]
+    assert float(listed[0].term.fs_strength) == 0.0
 
 
 def test_a_term_without_off_values_is_refused():

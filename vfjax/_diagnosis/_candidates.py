@@ -89,14 +89,27 @@ class Candidate:
 
 def default_candidates(model) -> list[Candidate]:
     """`DEFAULT_CANDIDATES` that are absent from ``model`` (or present at their off-value)."""
+    return offered(model, DEFAULT_CANDIDATES)
+
+
+def offered(model, candidates) -> list[Candidate]:
+    """The ``candidates`` (term classes, terms or `Candidate`s) that ``model`` lacks, or holds
+    at their off-values: there a class is offered as the model's own term."""
     out = []
-    for kind in DEFAULT_CANDIDATES:
-        term = model.term(kind)
+    for c in candidates:
+        term = model.term(_kind(c))
         if term is None:
-            out.append(Candidate.of(kind))
+            out.append(c if isinstance(c, Candidate) else Candidate.of(c))
         elif is_off(term):
-            out.append(Candidate.of(term))
+            out.append(c if isinstance(c, Candidate) else Candidate.of(term))
     return out
+
+
+def _kind(candidate) -> type:
+    """The term class of a candidate given as a `Candidate`, a term class or a term."""
+    if isinstance(candidate, Candidate):
+        return type(candidate.term)
+    return candidate if isinstance(candidate, type) else type(candidate)
 
 
 def is_off(term) -> bool:

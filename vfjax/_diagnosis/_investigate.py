@@ -15,7 +15,7 @@ from .._fit._engine import DEFAULT_SWARM
 from ..compare import NO_CLEAR_FAILURE, compare
 from ..recording import Recording
 from ._calibration import DEFAULT_CALIBRATION, Calibration
-from ._candidates import Candidate, is_off
+from ._candidates import offered
 from ._diagnose import diagnose
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
 from ._refits import error, refit_each
@@ -242,7 +242,7 @@ def investigate(
         print(f"fit: NMSE {current.nmse:.4g}")
     done = []
     for _ in range(max(rounds, 1)):
-        remaining = None if candidates is None else _remaining(candidates, current.model)
+        remaining = None if candidates is None else offered(current.model, candidates)
         d = diagnose(
             current,
             recording,
@@ -263,22 +263,3 @@ def investigate(
         if len(done) == rounds:
             break
     return Investigation(recording.name, done)
-
-
-def _remaining(candidates, model) -> list:
-    """The ``candidates`` that ``model`` lacks, or holds at their off-values (as
-    `default_candidates` offers the catalogue's)."""
-    out = []
-    for c in candidates:
-        term = model.term(_kind(c))
-        if term is None:
-            out.append(c)
-        elif is_off(term):
-            out.append(c if isinstance(c, Candidate) else Candidate.of(term))
-    return out
-
-
-def _kind(candidate) -> type:
-    if isinstance(candidate, Candidate):
-        return type(candidate.term)
-    return candidate if isinstance(candidate, type) else type(candidate)
