@@ -46,7 +46,7 @@ from ._sampling import DEFAULT_SUBSTEPS, Sampling, length_bucket
 from .model import VocalFoldModel
 from .terms.base import AbstractFoldPair, AbstractStatefulTerm
 from .terms.paper import BernoulliForce
-from .terms.tract import SourceTractInertance
+from .terms.tract import SourceTractInertance, flow_at
 
 #: Event budget per second of simulated time. A glottal cycle has up to 7 events, so the
 #: default budget covers f0 up to ~570 Hz; beyond it `Simulation.complete` may turn False
@@ -225,8 +225,7 @@ def glottal_flow(model: VocalFoldModel, simulation: Simulation, t_start: float =
         t_start: the simulation's ``t_start`` (s), the time origin of pressure terms
             (`vfjax.PressureModulation`); frames of a fit: its ``sampling.warmup``.
     """
-    aero = model.term(BernoulliForce)
-    if aero is None:
+    if model.term(BernoulliForce) is None:
         raise ValueError("the model has no BernoulliForce term: it has no glottal flow")
     x, v = simulation.displacement, simulation.velocity
     area = model.subject.area(x)
@@ -239,12 +238,7 @@ def glottal_flow(model: VocalFoldModel, simulation: Simulation, t_start: float =
     for term, z in zip(stateful, simulation.dense.internal_state(simulation.time)):
         if isinstance(term, SourceTractInertance):
             p_e = z
-    drop = jnp.maximum(ctx.pressure - p_e, 0.0)
-    s = model.subject
-    u = aero.particle_velocity(
-        ctx.area, drop, s.air_density, s.air_viscosity, s.thickness, s.length
-    )
-    return jnp.where(flow, ctx.area * u, 0.0)
+    return jnp.where(flow, flow_at(ctx, p_e), 0.0)
 
 
 # The regime flags travel in the scan's carry as bits of one integer: one array to update

@@ -84,24 +84,13 @@ class SourceTractInertance(AbstractStatefulForce):
     def initial_state(self) -> Array:
         return jnp.zeros(())
 
-    def flow(self, ctx: Context, p_e: ArrayLike) -> Array:
-        """The glottal flow Q (cm³/s) at the instant ``ctx`` with the tract's pressure
-        ``p_e`` (dyne/cm²), while air flows."""
-        return self._flow(ctx, ctx.area, _drop(ctx, p_e))
-
-    def _flow(self, ctx, area, drop):
-        u = ctx.aerodynamics.particle_velocity(
-            area, drop, ctx.air_density, ctx.air_viscosity, ctx.thickness, ctx.length
-        )
-        return area * u
-
     def state_rate(self, ctx: Context, p_e: Array) -> Array:
         if ctx.aerodynamics is None:
             return -p_e / TAU_MIN
         drop = _drop(ctx, p_e)
         one = jnp.ones_like(drop)
-        _, q_a = jax.jvp(lambda a: self._flow(ctx, a, drop), (ctx.area,), (one,))
-        _, q_p = jax.jvp(lambda p: self._flow(ctx, ctx.area, p), (drop,), (one,))
+        _, q_a = jax.jvp(lambda a: _flow(ctx, a, drop), (ctx.area,), (one,))
+        _, q_p = jax.jvp(lambda p: _flow(ctx, ctx.area, p), (drop,), (one,))
         target = self.I_t * q_a * ctx.area_rate
         tau = jnp.maximum(self.I_t * q_p, TAU_MIN)
         return jnp.where(ctx.flow, (target - p_e) / tau, -p_e / TAU_MIN)
@@ -124,6 +113,19 @@ class SourceTractInertance(AbstractStatefulForce):
     def held_state(self, p_e: Array, duration: ArrayLike) -> Array:
         # no flow while the folds rest closed: P_e relaxes to 0
         return p_e * jnp.exp(-duration / TAU_MIN)
+
+
+def flow_at(ctx: Context, p_e: ArrayLike = 0.0) -> Array:
+    """The glottal flow Q (cm³/s) at the instant ``ctx`` (air flowing) with the tract's
+    pressure ``p_e`` (dyne/cm²): the paper's flow (eq. 7) at the drop P_s - P_e."""
+    return _flow(ctx, ctx.area, _drop(ctx, p_e))
+
+
+def _flow(ctx: Context, area, drop):
+    u = ctx.aerodynamics.particle_velocity(
+        area, drop, ctx.air_density, ctx.air_viscosity, ctx.thickness, ctx.length
+    )
+    return area * u
 
 
 def _drop(ctx: Context, p_e):
