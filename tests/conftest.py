@@ -44,3 +44,70 @@ def shared_dir() -> pathlib.Path:
     if not (SHARED / "MODEL_SPEC.md").exists():
         pytest.fail(f"the shared data folder is missing: expected it at {SHARED}")
     return SHARED
+
+
+def check_report_html(markdown_path) -> str:
+    """Check the self-contained HTML page beside a report's Markdown against the Markdown
+    (parsed with the standard library's HTML parser, not with the code that wrote it):
+    one title, as many tables with as many rows as the Markdown has, every figure the
+    Markdown names embedded with its PNG's exact bytes, and nothing that runs or is fetched
+    (no script, stylesheet link, frame or external source). Returns the page's text."""
+    import base64
+    import html.parser
+    import re
+
+    markdown_path = pathlib.Path(markdown_path)
+    text = markdown_path.read_text()
+    page = markdown_path.with_suffix(".html").read_text()
+
+    class Parser(html.parser.HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.tags, self.images, self.rows, self.title = [], [], 0, ""
+            self._in_title = False
+
+        def handle_starttag(self, tag, attrs):
+            self.tags.append(tag)
+            attrs = dict(attrs)
+            if tag == "img":
+                self.images.append(attrs.get("src", ""))
+            if tag == "tr":
+                self.rows += 1
+            for name in ("src", "href"):
+                value = attrs.get(name) or ""
+                assert not value.startswith(("http:", "https:", "//", "javascript:")), value
+            self._in_title = tag == "title"
+
+        def handle_data(self, data):
+            if self._in_title:
+                self.title += data
+
+        def handle_endtag(self, tag):
+            self._in_title = False
+
+    parser = Parser()
+    parser.feed(page)
+    assert page.startswith("<!DOCTYPE html>")
+    assert parser.tags.count("h1") == 1 and parser.tags.count("main") == 1
+    assert parser.title == text.splitlines()[0].removeprefix("# ")
+    for tag in ("script", "link", "iframe", "object", "embed"):
+        assert tag not in parser.tags, tag
+    # tables: one per Markdown table, one row per Markdown table line but the separator
+    table_lines = [line for line in text.splitlines() if line.startswith("|")]
+    separators = [line for line in table_lines if re.fullmatch(r"\|(\s*:?-+:?\s*\|)+", line)]
+    assert parser.tags.count("table") == len(separators)
+    assert parser.rows == len(table_lines) - len(separators)
+    # figures: each Markdown image, in order, embedded with its file's bytes
+    figures = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
+    assert len(parser.images) == len(figures) >= 1
+    for src, name in zip(parser.images, figures):
+        head, _, data = src.partition(",")
+        assert head == "data:image/png;base64", head
+        assert base64.b64decode(data) == (markdown_path.parent / name).read_bytes()
+    return page
+
+
+@pytest.fixture
+def report_html():
+    """`check_report_html`, for the tests that write a report."""
+    return check_report_html

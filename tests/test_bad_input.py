@@ -811,3 +811,61 @@ def test_a_model_without_a_sub_critical_displacement_is_refused():
         )
     )(1e6)
     assert bool(traced.result == vfjax.RESULTS.invalid_parameters)
+
+
+def test_html_report_shows_markup_from_names_and_never_runs_it(tmp_path, report_html):
+    """A report's text carries names from files (a recording's, a cohort folder's); in the
+    HTML page any markup or link scheme they hold is shown as text, never interpreted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vfjax._html import write_markdown_report
+
+    fig, ax = plt.subplots(figsize=(2, 1))
+    ax.plot([0, 1], [0, 1])
+    fig.savefig(tmp_path / "figure.png")
+    plt.close(fig)
+    name = '<script>alert(1)</script><img src=x onerror="alert(2)">'
+    text = "\n".join(
+        [
+            f"# report of {name}",
+            "",
+            "| recording | link |",
+            "|---|---|",
+            f"| {name} | [report](javascript:alert(3)) |",
+            "| other | [its report](recordings/other/report.md) |",
+            "",
+            "![figure](figure.png)",
+            "",
+        ]
+    )
+    page = report_html(write_markdown_report(tmp_path / "report.md", text, f"report of {name}"))
+    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
+    assert "<script" not in page and page.count("<img") == 1  # the figure alone
+    assert 'href="recordings/other/report.html"' in page and "javascript:" not in page
+
+
+def test_outputs_have_the_permissions_of_any_file_the_user_writes(tmp_path):
+    """Files written atomically, a run's staged folder and a cohort recording's folder are
+    created as any other file is (0o666 and 0o777 less the umask), not private to their
+    owner as temporary files are: a lab's colleagues, or a cluster's workers, read them."""
+    from vfjax._cohort._store import CohortFolder
+    from vfjax.io import staged_output, write_text
+
+    old = os.umask(0o022)
+    try:
+        path = write_text(tmp_path / "report.md", "# report\n")
+        with staged_output(tmp_path / "out") as stage:
+            write_text(stage / "fit.json", "{}")
+            write_text(stage / "figures" / "fit.png", "")
+        folder = CohortFolder(tmp_path / "cohort").commit("rec", "key", {"status": "done"})
+    finally:
+        os.umask(old)
+    out = tmp_path / "out"
+    for file in (path, out / "fit.json", out / "figures" / "fit.png", folder / "result.json"):
+        assert file.stat().st_mode & 0o777 == 0o644, file
+    for entry in (out, out / "figures", folder):
+        assert entry.stat().st_mode & 0o777 == 0o755, entry
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cohort", "out", "report.md"]

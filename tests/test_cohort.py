@@ -65,7 +65,7 @@ def _result_times(out: pathlib.Path) -> dict:
 
 
 @pytest.mark.xdist_group("cohort")  # one run of the serial cohort
-def test_cohort_table_failures_and_fits_as_alone(serial):
+def test_cohort_table_failures_and_fits_as_alone(serial, report_html):
     manifest, out, frame = serial
     names = [r[0] for r in RECORDINGS] + ["no_sidecar", "short"]
     assert list(frame["recording"]) == [f"gaw__{n}" for n in names]  # the manifest's order
@@ -100,6 +100,7 @@ def test_cohort_table_failures_and_fits_as_alone(serial):
     assert "| gaw__short | the first fit: ValueError" in report
     assert (out / "figures" / "parameters.png").stat().st_size > 1000
     assert (out / "recordings" / "gaw__a" / "fit.json").is_file()
+    assert "gaw__short" in report_html(out / "report.md")
 
 
 @pytest.mark.xdist_group("cohort")  # one run of the serial cohort
@@ -266,7 +267,7 @@ def _found_gap(frame, out: pathlib.Path, truth: float):
     assert row["a_gap low [cm²]"] <= truth <= row["a_gap high [cm²]"]
     assert row["final NMSE"] < 0.5 * row["first NMSE"]
     folder = out / "recordings" / row["recording"]
-    assert (folder / "report.md").is_file()
+    assert (folder / "report.md").is_file() and (folder / "report.html").is_file()
     final = vfjax.FitResult.from_json(folder / "final_fit.json")
     assert final.model.has(vfjax.GlottalGap)
     assert final.nmse == pytest.approx(row["final NMSE"])

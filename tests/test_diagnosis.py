@@ -318,7 +318,7 @@ def test_hidden_effect_is_found(case):
 
 
 @pytest.mark.xdist_group("paper_fit")  # the paper model's S, K, C_f fit: compiled once
-def test_score_only_diagnosis_and_its_report(tmp_path):
+def test_score_only_diagnosis_and_its_report(tmp_path, report_html):
     """Without refits the ranking is by score p-value; the report is written with its
     figures and names every candidate (hidden gap, N3, 1 px noise: the gap ranks first);
     `diagnosis.extend` adds the gap and recovers it."""
@@ -342,6 +342,9 @@ def test_score_only_diagnosis_and_its_report(tmp_path):
     assert "closed phase: the measured area never falls below" in text
     assert (tmp_path / f"{rec.name}_rounds.png").stat().st_size > 1000
     assert (tmp_path / f"{rec.name}_round1_compare.png").exists()
+    # the same report as one self-contained HTML page, figures embedded
+    page = report_html(path)
+    assert "closed phase: the measured area never falls below" in page
     # with edges (a glottis of 10 rows, symmetric about column 50) the report gives the
     # asymmetry indices of symmetric folds
     half = np.repeat(rec.area[:, None], 10, axis=1) / 20.0

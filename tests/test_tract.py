@@ -167,7 +167,7 @@ def test_glottal_flow_needs_the_bernoulli_term_and_a_negative_inertance_is_refus
 def test_a_fit_with_the_term_recovers_a_hidden_tract_inertance():
     """N1 behind an adult vocal tract (I_t 0.0074 g/cm⁴) with 1 px noise: the paper's model
     leaves a misfit far above the noise; with the term (C_f held at the recording's value:
-    the inertance's energy input and C_f's loss trade off, see the README) the fit reaches
+    the inertance's energy input and C_f's loss trade off, see docs/model.md) the fit reaches
     the noise and recovers I_t within 20 %."""
     rec = demo_recording("N1", noise_px=1.0, effect=SourceTractInertance(I_t=ADULT))
     plain = vfjax.fit(vfjax.preset("N1"), rec, params=("S", "K", "C_f"), progress=False)

@@ -2,7 +2,7 @@
 
 Importing vfjax enables 64-bit floats in JAX (``jax_enable_x64``): the model is stiff, its
 event location needs double precision, and float32 silently loses the accuracy the fits and
-derivatives rely on. This is the one process-wide setting vfjax changes; see the README.
+derivatives rely on. This is the one process-wide setting vfjax changes (docs/index.md).
 """
 
 import jax

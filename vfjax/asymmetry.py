@@ -26,6 +26,7 @@ import dataclasses
 import numpy as np
 
 from .descriptors import detect_cycles
+from .recording import Recording
 
 #: Share of the glottal length, at each end, whose centre columns locate that end.
 END_BAND = 0.1
@@ -114,7 +115,9 @@ def _edges_from_masks(masks: np.ndarray) -> np.ndarray:
     return edges
 
 
-def glottal_midline(edges=None, masks=None) -> Midline:
+def glottal_midline(
+    edges: tuple[np.ndarray, np.ndarray] | None = None, masks: np.ndarray | None = None
+) -> Midline:
     """The glottal midline of a recording, from its edges or its masks.
 
     Arguments:
@@ -150,7 +153,9 @@ def glottal_midline(edges=None, masks=None) -> Midline:
     )
 
 
-def fold_areas(recording, midline: Midline | None = None) -> tuple[np.ndarray, np.ndarray]:
+def fold_areas(
+    recording: Recording, midline: Midline | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The image-left and image-right folds' glottal areas per frame (pixels), split by the
     glottal midline; they add up to the recording's area.
 

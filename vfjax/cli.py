@@ -61,7 +61,8 @@ def cmd_run(args) -> int:
 
 
 def _run(args, out, plt) -> int:
-    from .io import save_figure, write_recording, write_simulation, write_text
+    from ._html import write_markdown_report
+    from .io import save_figure, write_recording, write_simulation
     from .plotting import plot_gaw
     from .presets import PRESETS
 
@@ -139,7 +140,7 @@ def _run(args, out, plt) -> int:
         + ", ".join(f"{n} {v:.5g}" for n, v in result.params.items())
     )
     lines += _diagnosis_section(out)
-    write_text(out / "report.md", "\n".join(lines))
+    write_markdown_report(out / "report.md", "\n".join(lines), lines[0].removeprefix("# "))
     return 0
 
 
@@ -608,11 +609,13 @@ def build_parser() -> argparse.ArgumentParser:
     ex.set_defaults(func=cmd_extract)
 
     sim = sub.add_parser("simulate", help="simulate one preset and write its GAW")
-    sim.add_argument("preset", choices=["N1", "N2", "N3", "N4"])
+    sim.add_argument("preset", choices=["N1", "N2", "N3", "N4"], help="the paper's subject")
     sim.add_argument("-o", "--output", default="gaw.csv", help="CSV path (a .json sidecar too)")
-    sim.add_argument("--fps", type=float, default=4000.0)
-    sim.add_argument("--frames", type=int, default=201)
-    sim.add_argument("--t-start", type=float, default=0.0)
+    sim.add_argument("--fps", type=float, default=4000.0, help="frame rate, Hz (default: 4000)")
+    sim.add_argument("--frames", type=int, default=201, help="number of frames (default: 201)")
+    sim.add_argument(
+        "--t-start", type=float, default=0.0, help="sampling start, s after onset (default: 0)"
+    )
     sim.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     sim.set_defaults(func=cmd_simulate)
     return p

@@ -7,8 +7,10 @@ import numpy as np
 from ._fit import default_warmup
 from .descriptors import fundamental_frequency
 from .integrator import simulate, simulated_fold_areas
+from .model import VocalFoldModel
 from .presets import PRESSURE_KEY, preset
 from .recording import Recording
+from .terms import AbstractTerm
 from .terms.variability import ClosureJitter
 
 
@@ -18,10 +20,10 @@ def demo_recording(
     seed: int = 0,
     fps: float = 4000.0,
     n_frames: int = 201,
-    effect=None,
+    effect: AbstractTerm | None = None,
     name_suffix: str = "",
     jitter: float = 0.0,
-    model=None,
+    model: VocalFoldModel | None = None,
 ) -> Recording:
     """A GAW of the paper's subject ``name`` simulated by vfjax, as a camera would see it.
 
@@ -37,7 +39,8 @@ def demo_recording(
         name: the preset (N1-N4).
         noise_px: standard deviation of the measurement noise (px).
         seed: seed of the noise and the jitter.
-        fps, n_frames: frame rate (Hz) and number of frames.
+        fps: frame rate (Hz).
+        n_frames: number of frames.
         effect: a term hidden in the model (e.g. ``GlottalGap(a_gap=0.008)``).
         name_suffix: appended to the recording's name.
         jitter: cycle-to-cycle variability: relative standard deviation of the closure
@@ -107,7 +110,7 @@ class DemoVideo:
 
 
 def demo_video(
-    area_px=None,
+    area_px: np.ndarray | None = None,
     *,
     fps: float = 4000.0,
     shape: tuple[int, int] = (160, 128),

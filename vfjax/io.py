@@ -11,12 +11,30 @@ import contextlib
 import json
 import os
 import pathlib
+import secrets
 import shutil
-import tempfile
 
 import numpy as np
 
 from .phases import PHASE_NAMES
+
+
+def new_entry(parent, prefix: str, suffix: str = "", folder: bool = False) -> pathlib.Path:
+    """Create a new, uniquely named empty file (or ``folder``) in ``parent``: ``prefix`` +
+    random characters + ``suffix``. Unlike `tempfile`'s, whose entries only their owner may
+    read, it has the permissions of any file or folder the user creates (the umask's), so
+    that outputs renamed from it are as readable as the rest of the output folder."""
+    parent = pathlib.Path(parent)
+    while True:
+        path = parent / f"{prefix}{secrets.token_hex(4)}{suffix}"
+        try:
+            if folder:
+                os.mkdir(path, 0o777)
+            else:
+                os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return path
+        except FileExistsError:
+            continue
 
 
 @contextlib.contextmanager
@@ -26,11 +44,7 @@ def atomic_path(path):
     choose a format by it (matplotlib's ``savefig``) write the right one."""
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.stem}.{os.getpid()}.", suffix=f".partial{path.suffix}", dir=path.parent
-    )
-    os.close(fd)
-    tmp = pathlib.Path(tmp)
+    tmp = new_entry(path.parent, f".{path.stem}.{os.getpid()}.", f".partial{path.suffix}")
     try:
         yield tmp
         os.replace(tmp, path)
@@ -108,9 +122,7 @@ def staged_output(folder, force: bool = False):
     """
     folder = check_output_folder(folder, force)
     folder.parent.mkdir(parents=True, exist_ok=True)
-    stage = pathlib.Path(
-        tempfile.mkdtemp(prefix=f".{folder.name}.partial-{os.getpid()}-", dir=folder.parent)
-    )
+    stage = new_entry(folder.parent, f".{folder.name}.partial-{os.getpid()}-", folder=True)
     try:
         yield stage
         folder.mkdir(exist_ok=True)

@@ -263,14 +263,30 @@ class VocalFoldModel(eqx.Module):
         internal states, as `initial_state` orders them)."""
         return self.rates(t, x, v, state, flow, inner, closing, xc, pressure)[0]
 
-    def rates(self, t, x, v, state, flow, inner, closing, xc, pressure=None):
+    def rates(
+        self,
+        t: ArrayLike,
+        x: ArrayLike,
+        v: ArrayLike,
+        state: tuple,
+        flow: ArrayLike,
+        inner: ArrayLike,
+        closing: ArrayLike,
+        xc: ArrayLike,
+        pressure: ArrayLike | None = None,
+    ) -> tuple[Array, tuple]:
         """(dv/dt in cm/s², d state/dt) at one instant in the given (frozen) mode: the sum of
         the force terms over M, and each stateful term's `state_rate`.
 
         Arguments:
-            t: time (s); x: displacement (cm); v: velocity (cm/s).
+            t: time (s).
+            x: displacement (cm).
+            v: velocity (cm/s).
             state: the internal states of the stateful terms (`initial_state`'s layout).
-            flow, inner, closing: the frozen mode flags (`vfjax.terms.Context`).
+            flow: frozen mode flag: air flows through the glottis (x > x_0; `vfjax.Context`).
+            inner: frozen mode flag: the fold is inside the sub-critical displacement
+                (x <= x_c).
+            closing: frozen mode flag: the fold moves toward the midline (v < 0).
             xc: sub-critical displacement x_c (cm).
             pressure: the subglottal pressure at ``t`` (dyne/cm²) if already computed.
         """

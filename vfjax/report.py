@@ -1,18 +1,20 @@
-"""The diagnosis report: Markdown with PNG figures, from an `Investigation` (or one
-`Diagnosis`).
+"""The diagnosis report, from an `Investigation` (or one `Diagnosis`): Markdown with PNG
+figures, and the same as one self-contained HTML page (figures embedded).
 
     study = vfjax.investigate(recording)
-    vfjax.report.write_report(study, recording, "out/")      # out/report.md + figures
+    vfjax.report.write_report(study, recording, "out/")  # out/report.md, report.html, figures
 """
 
 import pathlib
+from os import PathLike
 
 import numpy as np
 
 from ._diagnosis import Diagnosis, Investigation, Round
+from ._html import write_markdown_report
 from .asymmetry import asymmetry_indices, fold_areas
 from .compare import plot_comparison
-from .io import save_figure, write_text
+from .io import save_figure
 from .recording import Recording
 
 
@@ -216,11 +218,13 @@ def _asymmetry_lines(recording: Recording) -> list[str]:
 def write_report(
     study: Investigation | Diagnosis,
     recording: Recording,
-    folder,
+    folder: str | PathLike,
     title: str | None = None,
     dpi: int = 110,
 ) -> pathlib.Path:
-    """Write ``folder/report.md`` and its PNG figures; returns the report's path.
+    """Write ``folder/report.md`` with its PNG figures, and ``folder/report.html``, the same
+    report as one self-contained page (figures embedded; readable offline); returns the
+    Markdown's path.
 
     Arguments:
         study: an `Investigation` (`vfjax.investigate`) or a single `Diagnosis`.
@@ -271,9 +275,8 @@ def write_report(
     lines += [f"![fits, error per round, convergence]({recording.name}_rounds.png)", ""]
     for i, r in enumerate(study.rounds, 1):
         lines += _round_lines(i, r, recording, folder, dpi)
-    path = folder / "report.md"
-    write_text(path, "\n".join(lines) + "\n")
-    return path
+    heading = lines[0].removeprefix("# ")
+    return write_markdown_report(folder / "report.md", "\n".join(lines) + "\n", heading)
 
 
 def _method_lines(d, r) -> list[str]:

@@ -40,9 +40,13 @@ areas (pixels, the coverage's sums).
 
 import dataclasses
 import warnings
+from os import PathLike
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
+
+from .recording import Recording, check_frame_rate
 
 
 @dataclasses.dataclass(frozen=True)
@@ -352,7 +356,7 @@ def _coverage(sub, masks, rim_px, glottis_masks=None, fitted=None):
 
 
 def segment_video(
-    video,
+    video: np.ndarray,
     *,
     register: bool = True,
     tissue_percentile: float = 90.0,
@@ -498,7 +502,7 @@ MAX_GLOTTIS_FRACTION = 0.25
 MIN_PERIODICITY = 0.7
 
 
-def video_to_recording(path, fps: float | None = None, **kwargs):
+def video_to_recording(path: str | PathLike, fps: float | None = None, **kwargs: Any) -> Recording:
     """Read a video and segment it: a `Recording` of the glottal area (pixels) with its
     coverage as masks. ``fps`` (Hz) is required when the file does not store it, and overrides the
     file's rate (a container may store a playback rate, such as 30 fps)."""
@@ -528,7 +532,6 @@ def frames_to_recording(
     import pathlib
 
     from .descriptors import periodicity
-    from .recording import Recording, check_frame_rate
 
     if fps is None and file_fps is None:
         raise ValueError(f"{source}: the frame rate is not in the file; give fps (--fps)")

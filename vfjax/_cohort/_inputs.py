@@ -7,6 +7,7 @@ import hashlib
 import io
 import pathlib
 import re
+from os import PathLike
 
 from ..recording import (
     AREA_COLUMNS,
@@ -114,7 +115,9 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def find_entries(folder, fps: float | None = None, exclude=None) -> list[CohortEntry]:
+def find_entries(
+    folder: str | PathLike, fps: float | None = None, exclude: str | PathLike | None = None
+) -> list[CohortEntry]:
     """Every recording under ``folder`` (recursively, hidden files and folders skipped):
     GAW tables (``.csv``/``.tsv`` whose header names an area column, with a ``.json``
     sidecar or read at ``fps``), contour files (``.txt`` of numbers) and videos, in sorted
@@ -150,7 +153,7 @@ def find_entries(folder, fps: float | None = None, exclude=None) -> list[CohortE
     return entries
 
 
-def read_manifest(path, fps: float | None = None) -> list[CohortEntry]:
+def read_manifest(path: str | PathLike, fps: float | None = None) -> list[CohortEntry]:
     """The recordings a manifest lists: a CSV with a ``path`` column (relative to the
     manifest's folder, or absolute), an optional ``fps`` column (Hz, for files that do not
     state their frame rate; empty where they do) and any grouping columns (subject, sex,

@@ -5,7 +5,8 @@ import pathlib
 
 import numpy as np
 
-from ..io import save_figure, write_text
+from .._html import write_markdown_report
+from ..io import save_figure
 
 #: The model parameters whose distributions the report plots, when fitted.
 PLOTTED = ("K", "C_f", "P_s", "t_c", "S")
@@ -82,7 +83,8 @@ def _fmt(value) -> str:
 
 def write_cohort_report(frame, folder, groups: list[str], seconds: float, dpi: int = 100):
     """Write ``folder/report.md`` and its figures (``folder/figures``) for the cohort table
-    ``frame``; returns the report's path.
+    ``frame``, and ``folder/report.html`` (the same, figures embedded); returns the
+    Markdown's path.
 
     Arguments:
         frame: the cohort table (`vfjax.cohort`'s DataFrame).
@@ -125,7 +127,7 @@ def write_cohort_report(frame, folder, groups: list[str], seconds: float, dpi: i
             reason = str(row["reason"]).replace("|", "/")
             lines.append(f"| {row['recording']} | {reason} |")
         lines.append("")
-    return write_text(folder / "report.md", "\n".join(lines))
+    return write_markdown_report(folder / "report.md", "\n".join(lines), "vfjax cohort")
 
 
 def _effect_lines(done, group) -> list[str]:

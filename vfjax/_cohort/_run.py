@@ -5,6 +5,8 @@ import logging
 import math
 import pathlib
 import time
+from os import PathLike
+from typing import TYPE_CHECKING
 
 from ._inputs import CohortEntry, content_key, find_entries, read_manifest
 from ._options import DEFAULT_OPTIONS, CohortOptions
@@ -12,6 +14,9 @@ from ._report import write_cohort_report
 from ._store import CohortFolder
 from ._table import table, write_table
 from ._work import Task, by_kind, finite_or_none, process_batch, read
+
+if TYPE_CHECKING:
+    import pandas
 
 
 def _entries(source, fps, out) -> tuple[list[CohortEntry], list[str]]:
@@ -43,16 +48,16 @@ def _settings(options: CohortOptions) -> dict:
 
 
 def cohort(
-    source,
-    out,
+    source: str | PathLike,
+    out: str | PathLike,
     options: CohortOptions = DEFAULT_OPTIONS,
     *,
     fps: float | None = None,
     workers: int | None = None,
-    scheduler=None,
+    scheduler: object = None,
     retry_failed: bool = False,
     progress: bool = False,
-):
+) -> "pandas.DataFrame":
     """Fit (and diagnose) every recording of a cohort; returns the cohort table.
 
     Each recording's results are written to ``out/recordings/<name>/`` as soon as they are

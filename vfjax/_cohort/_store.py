@@ -15,7 +15,6 @@ import json
 import os
 import pathlib
 import shutil
-import tempfile
 
 RESULT_FILE = "result.json"
 SETTINGS_FILE = "cohort.json"
@@ -69,12 +68,10 @@ class CohortFolder:
         """Write the recording's folder whole: ``write(stage)`` fills a staging folder with
         the recording's files, then its row goes in ``result.json`` and the folder replaces
         any earlier one of the same recording. Returns the folder."""
-        from ..io import write_json
+        from ..io import new_entry, write_json
 
         self.recordings.mkdir(parents=True, exist_ok=True)
-        stage = pathlib.Path(
-            tempfile.mkdtemp(prefix=f".{entry_id}.partial-{os.getpid()}-", dir=self.recordings)
-        )
+        stage = new_entry(self.recordings, f".{entry_id}.partial-{os.getpid()}-", folder=True)
         final = self.folder(entry_id)
         try:
             if write is not None:
@@ -82,9 +79,7 @@ class CohortFolder:
             write_json(stage / RESULT_FILE, {"key": key, "row": row})
             old = None
             if final.exists():
-                old = pathlib.Path(
-                    tempfile.mkdtemp(prefix=f".{entry_id}.old-{os.getpid()}-", dir=self.recordings)
-                )
+                old = new_entry(self.recordings, f".{entry_id}.old-{os.getpid()}-", folder=True)
                 os.replace(final, old / "folder")
             os.replace(stage, final)
             if old is not None:

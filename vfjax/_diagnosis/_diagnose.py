@@ -2,12 +2,14 @@
 
 import dataclasses
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from .._fit import FitResult, Swarm, default_warmup, fit
 from ..compare import compare, noise_level
 from ..recording import Recording
+from ..terms import AbstractTerm
 from ._calibration import DEFAULT_CALIBRATION, Calibration, calibrate, check_reachable
 from ._candidates import as_candidates
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
@@ -161,7 +163,13 @@ def _noise_nmse(recording, fits, sse_scale) -> float:
     return min(recording.n_frames * noise**2 / sse_scale, best.nmse)
 
 
-def extend(result: FitResult, recording: Recording, effect, params=None, **fit_kwargs):
+def extend(
+    result: FitResult,
+    recording: Recording,
+    effect: AbstractTerm,
+    params: Sequence[str] | None = None,
+    **fit_kwargs: Any,
+) -> FitResult:
     """Add ``effect`` to the fitted model and refit, warm-started from the current fit.
 
     Arguments:

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from .._fit import FIRST_FIT_RESTARTS, FitResult, Swarm, fit_recording
 from .._fit._engine import DEFAULT_SWARM
 from ..compare import NO_CLEAR_FAILURE, compare
+from ..model import VocalFoldModel
 from ..recording import Recording
 from ._calibration import DEFAULT_CALIBRATION, Calibration
 from ._candidates import offered
@@ -191,7 +192,7 @@ def extend_from(
 
 def investigate(
     recording: Recording,
-    model=None,
+    model: VocalFoldModel | None = None,
     params: Sequence[str] | None = None,
     *,
     rounds: int = 2,

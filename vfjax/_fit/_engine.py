@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jaxtyping import Array
 
 from .._sampling import DEFAULT_SUBSTEPS
 from ..model import VocalFoldModel
@@ -281,7 +282,7 @@ def fit_many(
     polish: Polish | None = DEFAULT_POLISH,
     warmup: float | None = None,
     substeps: int = DEFAULT_SUBSTEPS,
-    key=None,
+    key: Array | None = None,
     hold: Sequence[Sequence[str]] | None = None,
     progress: bool | None = None,
     callback: Callable[[int, float], None] | None = None,

@@ -9,8 +9,10 @@ recordings, the first fit's NMSE falls by up to 10x when P_s is searched with th
 `benchmarks/restarts.py`)."""
 
 from collections.abc import Sequence
+from typing import Any
 
 import jax
+from jaxtyping import Array
 
 from ..model import VocalFoldModel
 from ..presets import PRESSURE_KEY, initial_model
@@ -70,7 +72,7 @@ def fit_recording(
     *,
     restarts: int = FIRST_FIT_RESTARTS,
     bounds: dict | None = None,
-    **options,
+    **options: Any,
 ) -> FitResult:
     """Fit the model to a recording as a first fit should: from `initial_model`, with the
     subglottal pressure searched when the recording does not state it, in a box that reaches
@@ -102,8 +104,8 @@ def fit_recordings(
     *,
     restarts: int = FIRST_FIT_RESTARTS,
     bounds: dict | None = None,
-    key=None,
-    **options,
+    key: Array | None = None,
+    **options: Any,
 ) -> list[FitResult]:
     """`fit_recording` of many recordings as one batched job (`vfjax.fit_many`): each
     recording's first fit, from its own starting model and in its own box, with the same
