@@ -233,6 +233,7 @@ def main():
     ap.add_argument("--out", default="diagnosis_power.jsonl", help="JSON-lines results file")
     ap.add_argument("--only", help="one effect's cases, or 'none' for the no-effect ones")
     ap.add_argument("--strength", choices=STRENGTHS, help="only this strength of the effects")
+    ap.add_argument("--seed", type=int, help="only this seed's recordings")
     ap.add_argument("--limit", type=int, help="stop after this many new recordings")
     args = ap.parse_args()
     use_cpu_cores(None)
@@ -242,6 +243,8 @@ def main():
     todo = [c for c in cases() if c[0] not in done]
     if args.only:
         todo = [c for c in todo if (c[2] or "none") == args.only]
+    if args.seed is not None:
+        todo = [c for c in todo if c[5] == args.seed]
     if args.strength:
         todo = [c for c in todo if c[3] is None or STRENGTHS[c[3]] == args.strength]
     for case in todo[: args.limit]:
