@@ -594,7 +594,8 @@ def refit_jobs(
     names = problem.names
 
     def coords(values):
-        return np.r_[_coordinates(problem, values), np.full(1 + problem.fit_s, np.nan)]
+        free = _coordinates(problem, values)
+        return np.r_[free, np.full(problem.point_size - len(free), np.nan)]
 
     y0 = _point_of(problem, result)
     frees = [[1.0 if n in fitted else 0.0 for n in names]]

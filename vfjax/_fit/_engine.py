@@ -473,8 +473,7 @@ def fit_many(
     # Stage 2: the polish, one compiled solve for the whole batch.
     t1 = time.perf_counter()
     found = states.global_position
-    # a polish point: the swarm's coordinates, the time shift and, if fitted, log S
-    n_y = found.shape[1] + 1 + (1 if problems[0].fit_s else 0)
+    n_y = problems[0].point_size
     no_points = jnp.zeros((found.shape[0], n_y), found.dtype)
     from_swarm = jnp.zeros(found.shape[0], bool)
     if not windows:

@@ -105,6 +105,12 @@ class Problem(eqx.Module):
     n_shifts: int = eqx.field(static=True)  # shifts the swarm tries (a bucket)
     per_fold: bool = eqx.field(static=True, default=False)  # fit the folds' areas
 
+    @property
+    def point_size(self) -> int:
+        """Length of a polish point: the physical coordinates, the time shift (in periods)
+        and, if S is fitted, log(S / S_ref)."""
+        return len(self.names) + 1 + int(self.fit_s)
+
     def model_at(self, z, log_s=None):
         """The model at coordinates ``z`` (physical parameters first; S at ``log_s``)."""
         # linear coordinates of parameters that cannot be negative (a gap, a delay) are held
