@@ -1,8 +1,11 @@
-"""mkdocs hook: the command-line page's reference is the parser's own help, rendered at build
-time, so that it cannot fall behind the code."""
+"""mkdocs hooks: the command-line page's reference is the parser's own help, rendered at build
+time so that it cannot fall behind the code; and the pages' formulas are MathML, rendered by
+the browser itself, so that the site needs no script from elsewhere and reads offline."""
 
 import argparse
+import html
 import os
+import re
 
 MARKER = "<!-- vfjax-cli-help -->"
 
@@ -26,3 +29,18 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
     if MARKER in markdown:
         return markdown.replace(MARKER, _help_blocks())
     return markdown
+
+
+#: pymdownx.arithmatex's generic output: \( ... \) in a span, \[ ... \] in a div
+_MATH = re.compile(r'<(span|div) class="arithmatex">\s*\\([(\[])(.*?)\\[)\]]\s*</\1>', re.S)
+
+
+def _mathml(match: re.Match) -> str:
+    from latex2mathml.converter import convert
+
+    display = "block" if match.group(2) == "[" else "inline"
+    return convert(html.unescape(match.group(3)), display=display)
+
+
+def on_page_content(content: str, page, config, files) -> str:
+    return _MATH.sub(_mathml, content)
