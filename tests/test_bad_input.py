@@ -841,7 +841,7 @@ def test_html_report_shows_markup_from_names_and_never_runs_it(tmp_path, report_
             "",
         ]
     )
-    page = report_html(write_markdown_report(tmp_path / "report.md", text, f"report of {name}"))
+    page = report_html(write_markdown_report(tmp_path / "report.md", text))
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
     assert "<script" not in page and page.count("<img") == 1  # the figure alone
     assert 'href="recordings/other/report.html"' in page and "javascript:" not in page

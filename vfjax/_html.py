@@ -72,12 +72,14 @@ def markdown_to_html(text: str, folder, title: str) -> str:
     )
 
 
-def write_markdown_report(path, text: str, title: str) -> pathlib.Path:
+def write_markdown_report(path, text: str) -> pathlib.Path:
     """Write the report ``text`` as Markdown to ``path`` (``.md``) and as one self-contained
-    HTML page beside it (``.html``), each atomically; returns the Markdown's path."""
+    HTML page beside it (``.html``, titled by the text's first line, its heading), each
+    atomically; returns the Markdown's path."""
     from .io import write_text
 
     path = pathlib.Path(path)
+    title = text.split("\n", 1)[0].lstrip("#").strip()
     write_text(path, text)
     write_text(path.with_suffix(".html"), markdown_to_html(text, path.parent, title))
     return path

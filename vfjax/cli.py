@@ -140,7 +140,7 @@ def _run(args, out, plt) -> int:
         + ", ".join(f"{n} {v:.5g}" for n, v in result.params.items())
     )
     lines += _diagnosis_section(out)
-    write_markdown_report(out / "report.md", "\n".join(lines), lines[0].removeprefix("# "))
+    write_markdown_report(out / "report.md", "\n".join(lines))
     return 0
 
 

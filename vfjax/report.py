@@ -275,8 +275,7 @@ def write_report(
     lines += [f"![fits, error per round, convergence]({recording.name}_rounds.png)", ""]
     for i, r in enumerate(study.rounds, 1):
         lines += _round_lines(i, r, recording, folder, dpi)
-    heading = lines[0].removeprefix("# ")
-    return write_markdown_report(folder / "report.md", "\n".join(lines) + "\n", heading)
+    return write_markdown_report(folder / "report.md", "\n".join(lines) + "\n")
 
 
 def _method_lines(d, r) -> list[str]:

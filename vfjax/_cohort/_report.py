@@ -127,7 +127,7 @@ def write_cohort_report(frame, folder, groups: list[str], seconds: float, dpi: i
             reason = str(row["reason"]).replace("|", "/")
             lines.append(f"| {row['recording']} | {reason} |")
         lines.append("")
-    return write_markdown_report(folder / "report.md", "\n".join(lines), "vfjax cohort")
+    return write_markdown_report(folder / "report.md", "\n".join(lines))
 
 
 def _effect_lines(done, group) -> list[str]:
