@@ -52,10 +52,10 @@ from .terms.tract import SourceTractInertance, flow_at
 #: default budget covers f0 up to ~570 Hz; beyond it `Simulation.complete` may turn False
 #: (each closure hold spares the grid steps it spans, so a recording that closes can go beyond).
 EVENTS_PER_SECOND = 4000.0
-#: Scan iterations per loop trip. Two halve the loop's fixed cost per iteration (its ~50
-#: kernels are launched once for two iterations' work), which is what limits small batches:
-#: +10 % at batch 1, +5-8 % at 32-64, no change at 256 (`benchmarks/throughput.py`).
-_UNROLL = 2
+#: Scan iterations per loop trip (the scan's ``unroll``). Each copy of the iteration's body is
+#: compiled into every program that simulates: a second copy costs about a third more compile
+#: time in a fit's polish and a sixth in its swarm, for a warm fit no faster (N3, 201 frames).
+_UNROLL = 1
 #: Iterations per trip of the early-stopping loop: a scan of 16, whose rows are written as one
 #: block (writing each iteration's row on its own was slower: by a third at batch 1, 6 % at 64,
 #: 14 % at 256). The loop's length is rounded up to a multiple of it, so it overshoots the last
