@@ -1,6 +1,6 @@
 """The diagnosis's calibration by simulation: the variability terms against analytic
 limits, the refit statistic's solver against scipy, and the calibrated p-values on the
-shared independent recordings (the no-effect case: `test_diagnosis`)."""
+shared independent recordings (the no-effect case, slow: `test_diagnosis`)."""
 
 import jax
 import jax.numpy as jnp
