@@ -53,8 +53,9 @@ from .terms.tract import SourceTractInertance, flow_at
 #: (each closure hold spares the grid steps it spans, so a recording that closes can go beyond).
 EVENTS_PER_SECOND = 4000.0
 #: Scan iterations per loop trip (the scan's ``unroll``). Each copy of the iteration's body is
-#: compiled into every program that simulates: a second copy costs about a third more compile
-#: time in a fit's polish and a sixth in its swarm, and runs no faster (benchmarks/README.md).
+#: compiled into every program that simulates: a second copy makes a fit's polish take about
+#: half again as long to compile and its swarm a fifth longer, and runs no faster
+#: (benchmarks/README.md).
 _UNROLL = 1
 #: Iterations per trip of the early-stopping loop: a scan of 16, whose rows are written as one
 #: block (writing each iteration's row on its own was slower: by a third at batch 1, 6 % at 64,
