@@ -171,10 +171,13 @@ def _shared(shared_dir, name, **options):
 
 
 #: A level whose smallest p-value (1/20) takes two batches of null recordings instead of the
-#: default's seven (1/112 at alpha 0.01; notebook 02 uses it in the suite too).
+#: default's seven (1/112 at alpha 0.01), and a short search: one start per candidate, no
+#: confirming refit, batches of 32 refits (notebooks 02 and 03 use it in the suite too; the
+#: default search runs in the slow cases and in benchmarks/diagnosis_power.py).
 QUICK_LEVEL = {
     "criteria": vfjax.Criteria(alpha=0.05),
     "calibration": vfjax.Calibration(replicates=19),
+    "plan": vfjax.RefitPlan(starts=1, confirm_iterations=None, batch=32),
 }
 
 
