@@ -14,8 +14,9 @@ def test_there_are_notebooks():
 
 
 #: Notebooks that diagnose a recording of the shared tests' length bucket with the default
-#: candidates: run by the worker of the diagnosis tests, after them, so that the notebook's
-#: kernel finds their compiled programs in the session's compilation cache.
+#: candidates, refit plan and calibration batch of `test_diagnosis.QUICK_LEVEL`: run by the
+#: worker of the diagnosis tests, after them, so that the notebook's kernel finds their
+#: compiled programs in the session's compilation cache.
 _AFTER_DIAGNOSIS = ("03_missing_physics.ipynb",)
 
 
