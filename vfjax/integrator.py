@@ -934,6 +934,11 @@ def window_size(sampling: Sampling) -> tuple[int, int]:
     return frames, _CHUNK * -(-rows // _CHUNK)
 
 
+# Compiled as a program of its own, nested where it is called: a fit's or a diagnosis's
+# program simulates in several places (a shift profile, residuals, their Jacobian), and JAX
+# then traces the integrator once for all of them (tracing is paid in every process, even when
+# the persistent compilation cache holds the program).
+@eqx.filter_jit
 def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows: int):
     """The frames of one simulation for the compiled fits: as `simulate` with
     ``reverse_mode=False`` and ``throw=False``, but with every size that depends on the
@@ -980,11 +985,6 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
     )
 
 
-@eqx.filter_jit
-def _frames(model, grid, shift, n_out, n_rows):
-    return simulate_frames(model, grid, shift, n_out=n_out, n_rows=n_rows)
-
-
 def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift=0.0) -> Simulation:
     """The `Simulation` of ``model`` sampled as a fit samples it (``sampling``, frames shifted
     by ``time_shift`` s); its dense output covers the frames and a short lookback before
@@ -993,7 +993,8 @@ def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift=0.0)
     derivatives only (`simulate_frames`)."""
     n_out, n_rows = window_size(sampling)
     model.check_step(sampling.step)
-    sim = _frames(model, sampled_grid(sampling), jnp.asarray(float(time_shift)), n_out, n_rows)
+    shift = jnp.asarray(float(time_shift))
+    sim = simulate_frames(model, sampled_grid(sampling), shift, n_out=n_out, n_rows=n_rows)
     n = sampling.n_frames
     per_frame = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
     # the recording's frames cut off the bucket on the host (a device slice would compile a

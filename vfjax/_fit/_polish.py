@@ -1,5 +1,6 @@
 """The local stage: an optimistix least-squares solve of the residual vector."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
@@ -26,11 +27,18 @@ def jacobian_columns(fn, y, basis):
     return jax.vmap(lambda t: jax.jvp(fn, (y,), (t,)), out_axes=(None, 1))(basis)
 
 
+@eqx.filter_jit
+def _residual_and_jacobian(y, problem: Problem):
+    # a nested program: optimistix traces the linearisation more than once per solve, and
+    # each trace then reuses this one
+    return jacobian_columns(problem.residual, y, jnp.eye(y.shape[0], dtype=y.dtype))
+
+
 @residual.defjvp
 def _residual_jvp(primals, tangents):
     y, problem = primals
     dy, _ = tangents
-    r, jac = jacobian_columns(problem.residual, y, jnp.eye(y.shape[0], dtype=y.dtype))
+    r, jac = _residual_and_jacobian(y, problem)
     return r, jac @ dy
 
 
