@@ -12,6 +12,8 @@ process or each worker, sampled every 2 s, over the first and the second half of
     python benchmarks/cohort.py --out bench_cohort --diagnose      # fit + diagnosis (part b)
     python benchmarks/cohort.py --out bench_cohort --diagnose --check 8
         # and the verdicts of 8 recordings diagnosed alone (vfjax.investigate)
+    python benchmarks/cohort.py --out bench_cohort --n 96 --length 201 --skip-serial
+        # one length bucket: whether a worker's memory grows with the recordings
 
 Each run writes its own cohort folder under --out and reuses nothing of an earlier run
 (each starts from an empty folder; JAX's compilation cache stays on, as for the command
@@ -45,8 +47,9 @@ def effects():
     )
 
 
-def make_recordings(folder: pathlib.Path, n: int) -> pathlib.Path:
-    """The cohort's recordings and manifest (path, subject, sex, effect)."""
+def make_recordings(folder: pathlib.Path, n: int, lengths=LENGTHS) -> pathlib.Path:
+    """The cohort's recordings and manifest (path, subject, sex, effect), of ``lengths``
+    frames in turn."""
     import vfjax
     from vfjax.io import write_recording
 
@@ -54,7 +57,7 @@ def make_recordings(folder: pathlib.Path, n: int) -> pathlib.Path:
     lines = ["path,subject,sex,effect"]
     kinds = effects()
     for i in range(n):
-        length = LENGTHS[i % len(LENGTHS)]
+        length = lengths[i % len(lengths)]
         rates = [r for r in RATES if length / r >= MIN_DURATION_S]
         fps = rates[(i // len(LENGTHS)) % len(rates)]
         subject = SUBJECTS[(i // 2) % len(SUBJECTS)]
@@ -121,9 +124,11 @@ class MemoryLog:
             first = [s[who] for _, s in self.samples[:half] if who in s]
             second = [s[who] for _, s in self.samples[half:] if who in s]
             if first and second:
+                quarter = first[len(first) // 2]
                 out.append(
                     f"{who.split(':')[-1]}: peak {max(first):.0f} MB (first half), "
-                    f"{max(second):.0f} MB (second half)"
+                    f"{max(second):.0f} MB (second half); {quarter:.0f} MB a quarter in, "
+                    f"{second[-1]:.0f} MB at the end"
                 )
         return "; ".join(out)
 
@@ -181,6 +186,13 @@ def main() -> int:
     p.add_argument("--workers", type=int, default=2, help="Dask worker processes")
     p.add_argument("--skip-serial", action="store_true", help="the cluster run only")
     p.add_argument("--check", type=int, default=0, help="recordings diagnosed alone too")
+    p.add_argument(
+        "--length",
+        type=int,
+        default=None,
+        help="every recording this many frames (one length bucket: no new program after the "
+        "first batch, so a memory that grows would grow with the recordings)",
+    )
     args = p.parse_args()
 
     from vfjax._runtime import use_compilation_cache, use_cpu_cores
@@ -190,7 +202,8 @@ def main() -> int:
     import vfjax
 
     out = pathlib.Path(args.out)
-    manifest = make_recordings(out / "data", args.n)
+    lengths = LENGTHS if args.length is None else (args.length,)
+    manifest = make_recordings(out / "data", args.n, lengths)
     options = vfjax.CohortOptions(diagnose=args.diagnose)
     part = "fit + diagnosis" if args.diagnose else "fits alone"
     tag = "diagnosed" if args.diagnose else "fits"
