@@ -59,7 +59,7 @@ def make_recordings(folder: pathlib.Path, n: int, lengths=LENGTHS) -> pathlib.Pa
     for i in range(n):
         length = lengths[i % len(lengths)]
         rates = [r for r in RATES if length / r >= MIN_DURATION_S]
-        fps = rates[(i // len(LENGTHS)) % len(rates)]
+        fps = rates[(i // len(lengths)) % len(rates)]
         subject = SUBJECTS[(i // 2) % len(SUBJECTS)]
         name, effect = kinds[(i // 2) % len(kinds)] if i % 2 else ("none", None)
         rec = vfjax.datasets.demo_recording(
