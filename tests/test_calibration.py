@@ -203,15 +203,17 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
         "long": (np.array([3.0, 1.2]), np.array([[2.5, 2.0], [1.1, 0.9]])),
     }
 
-    def fake(problem, y0, starts, frees, bases, data, steps, mesh):
+    def fake(problem, y0, starts, frees, bases, reshift, data, steps, mesh):
         cc, cj = results[problem]
         yj = np.stack([np.stack([np.full(2, c) for c in row]) for row in cj])
         return cc, np.zeros((2, 2)), cj, yj
 
     monkeypatch.setattr(cal, "_statistics", fake)
     groups = [
-        SimpleNamespace(problem="fit", y0=0, starts=0, frees=0, bases=0, owner=(0, 1, 1)),
-        SimpleNamespace(problem="long", y0=0, starts=0, frees=0, bases=0, owner=(2, 2)),
+        SimpleNamespace(
+            problem="fit", y0=0, starts=0, frees=0, bases=0, reshift=0, owner=(0, 1, 1)
+        ),
+        SimpleNamespace(problem="long", y0=0, starts=0, frees=0, bases=0, reshift=0, owner=(2, 2)),
     ]
     controls, best, points = cal.run_statistics(groups, np.zeros((2, 5)), steps=3, n_cands=3)
     np.testing.assert_allclose(controls[:, :2], [[1.0, 1.0], [2.0, 2.0]])

@@ -32,6 +32,7 @@ from ..descriptors import cycle_starts, describe, fundamental_frequency
 from ..recording import Recording
 from ..terms.variability import AmplitudeJitter, TimingJitter
 from ._candidates import Candidate, extended
+from ._score import wrap_angle
 
 
 class Calibration(eqx.Module):
@@ -337,6 +338,9 @@ class _Jobs:
     frees: jax.Array  # (1 + jobs, n_params) fitted parameters of the control and each job
     bases: jax.Array  # (1 + jobs, columns, n_y) each refit's search directions
     owner: tuple  # candidate index of each job (in the diagnosis's list of candidates)
+    # (jobs,) 1 where a start's time shift and S are found afresh on each recording (a start
+    # far from the control's optimum, whose cycles the control's shift does not align)
+    reshift: jax.Array
 
 
 #: Each step's trial dampings, as multiples of the current one (six decades): near a grazing
@@ -421,7 +425,7 @@ def settled(jobs: _Jobs, steps: int) -> _Jobs:
 
 
 @eqx.filter_jit
-def _statistics(problem, y0, starts, frees, bases, data, steps: int, mesh):
+def _statistics(problem, y0, starts, frees, bases, reshift, data, steps: int, mesh):
     """For each recording (rows of ``data``): the control's NMSE and point, and each job's
     NMSE (never above the control's) and point. The control takes ``2 * steps`` steps (one
     refit beside the many jobs: a control left short of its optimum would hand every
@@ -433,13 +437,14 @@ def _statistics(problem, y0, starts, frees, bases, data, steps: int, mesh):
         pc = dataclasses.replace(p, free=frees[0])
         yc, cc = levenberg_marquardt(pc.residual, y0, bases[0], 2 * steps)
 
-        def job(start, free, basis):
+        def job(start, free, basis, again):
             pj = dataclasses.replace(p, free=free)
             y = jnp.where(jnp.isnan(start), yc, start)
+            y = jnp.where(again > 0, pj.start(y[: len(pj.names)])[0], y)
             yj, cj = levenberg_marquardt(pj.residual, y, basis, steps)
             return jnp.where(cj <= cc, cj, cc), jnp.where(cj <= cc, yj, yc)
 
-        cj, yj = jax.vmap(job)(starts, frees[1:], bases[1:])
+        cj, yj = jax.vmap(job)(starts, frees[1:], bases[1:], reshift)
         return cc, yc, cj, yj
 
     def run(data):
@@ -460,12 +465,14 @@ def _mesh(n_recordings: int):
     return jax.sharding.Mesh(np.array(devices), ("recordings",))
 
 
-def _start_values(cand: Candidate, model) -> list[dict]:
+def _start_values(cand: Candidate, model, whole_circle: bool = False) -> list[dict]:
     """The candidate's fixed starts: its tested parameters a step off their off-values (a
     third of their search scale; two-sided single parameters at the off-value), over a
     lattice of four grid settings and its directions (a modulation: two phases a quarter
     cycle apart; from one phase alone its refit on syn_base falls 0 % where from two it
-    falls 12 %)."""
+    falls 12 %). With ``whole_circle``, the directions' phases are three spread over the
+    whole cycle (a one-sided size, such as a modulation's depth, does not reach the
+    opposite phase through zero)."""
 
     def scale(name):
         return (search_range(model, name) or (0.0, 1.0, 0.1))[2]
@@ -475,7 +482,15 @@ def _start_values(cand: Candidate, model) -> list[dict]:
     if len(cand.grid) == 1 and len(cand.directions) == 1:
         return [{**cand.grid[0], **cand.directions[0], **tested}]
     grid = [cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, min(4, len(cand.grid)))]
-    return [{**g, **d, **tested} for g in grid for d in cand.directions]
+    directions = cand.directions
+    if whole_circle and len(directions) > 1:
+        first = directions[0]
+        phases = [k for k in first if all(k in d for d in directions)]
+        directions = [
+            {**first, **{k: wrap_angle(first[k] + a) for k in phases}}
+            for a in (0.0, 2.0 * math.pi / 3.0, -2.0 * math.pi / 3.0)
+        ]
+    return [{**g, **d, **tested} for g in grid for d in directions]
 
 
 def _coordinates(problem, values: dict, fill: float = math.nan) -> np.ndarray:
@@ -517,7 +532,9 @@ def _point_of(problem, fit: FitResult) -> np.ndarray:
     return np.asarray(_start(problem, jnp.asarray(z))[0])
 
 
-def refit_groups(result: FitResult, recording: Recording, cands, estimates, steps: int) -> list:
+def refit_groups(
+    result: FitResult, recording: Recording, cands, estimates, steps: int, anchor=None
+) -> list:
     """The statistic's refits of ``result`` on ``recording``, in groups of one warm-up each
     (`refit_jobs`): the candidates that need no longer warm-up than the fit's are refitted
     in the fit's own sampling, from the fit's point; those that do (a slow modulation's
@@ -538,6 +555,7 @@ def refit_groups(result: FitResult, recording: Recording, cands, estimates, step
             estimates,
             [k for k in range(len(cands)) if warmups[k] == w],
             w,
+            anchor,
         )
         for w in levels
     ]
@@ -553,13 +571,20 @@ def refit_groups(result: FitResult, recording: Recording, cands, estimates, step
             frees=jnp.concatenate([g.frees, jnp.repeat(g.frees[:1], pad, axis=0)]),
             bases=jnp.concatenate([bases, jnp.repeat(bases[:1], pad, axis=0)]),
             owner=g.owner + (-1,) * pad,
+            reshift=jnp.concatenate([g.reshift, jnp.zeros(pad)]),
         )
         out.append(g if w == result.sampling.warmup else settled(g, steps))
     return out
 
 
 def refit_jobs(
-    result: FitResult, recording: Recording, cands, estimates, members, warmup: float
+    result: FitResult,
+    recording: Recording,
+    cands,
+    estimates,
+    members,
+    warmup: float,
+    anchor: dict | None = None,
 ) -> _Jobs:
     """The statistic's refits of ``result`` on ``recording`` for the candidates ``members``
     (indices into ``cands``) at ``warmup`` (s): the model extended by every candidate (held
@@ -599,17 +624,25 @@ def refit_jobs(
 
     y0 = _point_of(problem, result)
     frees = [[1.0 if n in fitted else 0.0 for n in names]]
-    starts, owner = [], []
+    starts, owner, reshift = [], [], []
     for k in members:
         c = cands[k]
         own = set(fitted) | set(c.tested + c.extra)
         begin = [coords(s) for s in _start_values(c, wide)]
+        again = [0.0] * len(begin)
+        if anchor and not _single_basin(c):
+            fixed = {n: v for n, v in anchor.items() if n in fitted}
+            around = [coords({**s, **fixed}) for s in _start_values(c, wide, whole_circle=True)]
+            begin += around
+            again += [1.0] * len(around)
         if _single_basin(c):
             found = None if estimates is None else estimates[k]
             if found is not None and found.nmse < result.nmse:
                 begin.append(_point_of(problem, found))
             else:
                 begin.append(np.full(y0.size, np.nan))
+            again.append(0.0)
+        reshift += again
         for b in begin:
             starts.append(b)
             frees.append([1.0 if n in own else 0.0 for n in names])
@@ -629,6 +662,7 @@ def refit_jobs(
         jnp.asarray(np.array(frees)),
         jnp.asarray(bases),
         tuple(owner),
+        jnp.asarray(reshift),
     )
 
 
@@ -650,6 +684,7 @@ def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
                 jobs.starts,
                 jobs.frees,
                 jobs.bases,
+                jobs.reshift,
                 jnp.asarray(data),
                 int(steps),
                 _mesh(len(data)),
@@ -796,6 +831,8 @@ def calibrate(
     alpha: float,
     calibration: Calibration = DEFAULT_CALIBRATION,
     estimates=None,
+    anchor: dict | None = None,
+    refine=None,
 ) -> Calibrated:
     """Calibrate each candidate's refit statistic on null recordings of ``result``.
 
@@ -818,10 +855,14 @@ def calibrate(
     spread). ``estimates``: per candidate, a fit of the model with it (`FitResult` or None,
     such as a search's refit on the recording): a start of the statistic's refits for a
     candidate with a single basin (`refit_jobs`), and, where its error is below the
-    statistic's refit's, the start of the refinement."""
+    statistic's refit's, the start of the refinement. ``anchor``: values of the fitted
+    parameters (`anchor_values`), a second base of the fixed starts of a candidate with many
+    basins (`refit_jobs`). ``refine``: called with the test's result (its intervals not yet
+    computed), returns the estimates that start the refinement (a larger search for the
+    effect the test ranks first, say) in place of ``estimates``."""
     cands = list(cands)
     steps = calibration.steps
-    groups = refit_groups(result, recording, cands, estimates, steps)
+    groups = refit_groups(result, recording, cands, estimates, steps, anchor)
     period = 1.0 / fundamental_frequency(result.fitted_gaw(recording), recording.fps)
     own, _, _ = prepare(
         result.model, recording, tuple(result.params), result.sampling, period, None
@@ -872,15 +913,6 @@ def calibrate(
     group_of = {k: g for g in groups for k in g.owner}
     values = [_values(group_of[k], yb[k][0], c) for k, c in enumerate(cands)]
     intervals = [None] * n_cands
-    for k, cand in enumerate(cands):
-        if family[k] <= alpha:
-            jobs, y = group_of[k], yb[k][0]
-            found = None if estimates is None else estimates[k]
-            if found is not None and found.nmse < cb[0, k]:
-                y = _point_of(jobs.problem, found)
-            values[k], intervals[k] = _interval(
-                jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands
-            )
     variability = Variability(
         jitter,
         shimmer,
@@ -890,7 +922,7 @@ def calibrate(
         noise,
         period,
     )
-    return Calibrated(
+    tested = Calibrated(
         candidates=tuple(c.name for c in cands),
         control_nmse=float(cc[0, main]),
         controls=tuple(float(x) for x in cc[0]),
@@ -906,6 +938,31 @@ def calibrate(
         intervals=tuple(intervals),
         interval_level=calibration.interval,
     )
+    if refine is not None:
+        estimates = refine(tested)
+    for k, cand in enumerate(cands):
+        if family[k] <= alpha:
+            jobs, y = group_of[k], yb[k][0]
+            found = None if estimates is None else estimates[k]
+            if found is not None and found.nmse < cb[0, k]:
+                # a fit after another warm-up maps to a point that can fit worse here (the
+                # state at the first frame, a modulation's phase): judged by its own error
+                y_found = _point_of(jobs.problem, found)
+                if _nmse_at(jobs, k, y_found) < cb[0, k]:
+                    y = y_found
+            values[k], intervals[k] = _interval(
+                jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands
+            )
+    return dataclasses.replace(tested, values=tuple(values), intervals=tuple(intervals))
+
+
+def _nmse_at(jobs: _Jobs, k: int, y) -> float:
+    """The NMSE of candidate ``k``'s refit problem (in its group ``jobs``) at the point
+    ``y`` on the recording."""
+    free = jobs.frees[1 + jobs.owner.index(k)]
+    residual = dataclasses.replace(jobs.problem, free=free).residual(jnp.asarray(y))
+    cost = float(jnp.sum(residual**2))
+    return cost if math.isfinite(cost) else math.inf
 
 
 def _interval(jobs, source, observed, y, k, cand, sds, calibration, n_cands) -> tuple:
@@ -922,7 +979,11 @@ def _interval(jobs, source, observed, y, k, cand, sds, calibration, n_cands) -> 
     model = model.with_term(source.model.terms[-2]).with_term(source.model.terms[-1])
     size, n = calibration.batch, calibration.interval_replicates
     own = (np.asarray(jobs.owner) == k)[:, None]
-    from_y = dataclasses.replace(jobs, starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts))
+    from_y = dataclasses.replace(
+        jobs,
+        starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts),
+        reshift=jnp.where(own[:, 0], 0.0, jobs.reshift),
+    )
     drawn = source.draw(n, *sds, model=model, shift=shift, problem=jobs.problem)
     rows = np.concatenate([observed, drawn])
     rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])

@@ -92,20 +92,28 @@ def diagnose(
 
         if plan.confirm_iterations is not None:  # the best fit without any effect
             control, fitted_each = confirmed(None)
-        # the test: calibrated on null recordings of the best fit without any effect
+        # the test: calibrated on null recordings of the best fit without any effect; a
+        # larger search for the effect to add (the most significant, if any is), where an
+        # extension starts and its interval is computed; an effect that is not needed keeps
+        # its quick refit
         base = result if result.nmse <= control.nmse else control
-        cal = calibrate(base, recording, cands, criteria.alpha, calibration, fitted_each)
+
+        def refine(tested):
+            nonlocal control, fitted_each
+            leader = tested.candidates.index(tested.ranking()[0])
+            if plan.confirm_iterations is not None and tested.p_values[leader] <= criteria.alpha:
+                control, fitted_each = confirmed(leader)
+            return fitted_each
+
+        cal = calibrate(
+            base, recording, cands, criteria.alpha, calibration, fitted_each, anchor, refine
+        )
         if progress:
             print(
                 f"control (no effect): NMSE {result.nmse:.4g} -> {cal.control_nmse:.4g}; "
                 f"{cal.replicates} null recordings"
             )
-        # a larger search for the effect to add (the most significant, if any is), where an
-        # extension starts; an effect that is not needed keeps its quick refit
         ranking = cal.ranking()
-        leader = cal.candidates.index(ranking[0])
-        if plan.confirm_iterations is not None and cal.p_values[leader] <= criteria.alpha:
-            control, fitted_each = confirmed(leader)
         for k, (cand, fitted) in enumerate(zip(cands, fitted_each)):
             off = {n: float(type(cand.term).off_values[n]) for n in cand.tested}
             control_k = cal.controls[k]  # the control in the candidate's sampling
