@@ -189,6 +189,34 @@ def test_candidates_beyond_every_null_recording_rank_by_their_centred_statistic(
     assert np.argmin(cal.f_p_values) == 1
 
 
+def test_a_modulations_second_lattice_spreads_its_phase_over_the_whole_cycle(n3):
+    """The modulation's depth cannot go below zero, so its phases a quarter cycle apart
+    reach only half of the cycle; its second lattice (about the starting model) puts three
+    phases a third of a cycle apart at each of its four frequencies. A candidate with one
+    basin keeps its one start."""
+    from vfjax._diagnosis._calibration import _start_values
+    from vfjax._diagnosis._candidates import as_candidates
+
+    cands = {c.name: c for c in as_candidates(n3, None)}
+    modulation = cands["PressureModulation"]
+    model = n3.with_term(modulation.term)
+    quarter = _start_values(modulation, model)
+    spread = _start_values(modulation, model, whole_circle=True)
+    assert len(quarter) == 8 and len(spread) == 12
+    frequencies = sorted({s["f_m"] for s in spread})
+    assert frequencies == [2.0, 8.0, 14.0, 20.0]  # the score grid's ends and two between
+    for f in frequencies:
+        phases = np.sort([s["phi"] for s in spread if s["f_m"] == f])
+        gaps = np.diff(np.r_[phases, phases[0] + 2 * np.pi])
+        np.testing.assert_allclose(gaps, 2 * np.pi / 3, rtol=1e-12)
+    # the depth one step (a third of its search scale, 0.05) off zero, as in the first lattice
+    assert {s["a_pm"] for s in spread} == {s["a_pm"] for s in quarter} == {0.05 / 3}
+    gap = cands["GlottalGap"]
+    assert _start_values(gap, n3.with_term(gap.term), whole_circle=True) == _start_values(
+        gap, n3.with_term(gap.term)
+    )
+
+
 def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypatch):
     """`run_statistics` with two groups of refits: the fit's sampling (candidates 0 and 1)
     and a longer warm-up (candidate 2). Each candidate keeps its best job; candidate 2's
@@ -203,17 +231,17 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
         "long": (np.array([3.0, 1.2]), np.array([[2.5, 2.0], [1.1, 0.9]])),
     }
 
-    def fake(problem, y0, starts, frees, bases, reshift, data, steps, mesh):
+    def fake(problem, y0, starts, frees, bases, pool, data, steps, mesh):
         cc, cj = results[problem]
         yj = np.stack([np.stack([np.full(2, c) for c in row]) for row in cj])
         return cc, np.zeros((2, 2)), cj, yj
 
     monkeypatch.setattr(cal, "_statistics", fake)
+    fields = ("y0", "starts", "frees", "bases", "pool", "pool_free", "pool_owner", "rank")
+    unused = dict.fromkeys(fields, 0)
     groups = [
-        SimpleNamespace(
-            problem="fit", y0=0, starts=0, frees=0, bases=0, reshift=0, owner=(0, 1, 1)
-        ),
-        SimpleNamespace(problem="long", y0=0, starts=0, frees=0, bases=0, reshift=0, owner=(2, 2)),
+        SimpleNamespace(problem="fit", owner=(0, 1, 1), **unused),
+        SimpleNamespace(problem="long", owner=(2, 2), **unused),
     ]
     controls, best, points = cal.run_statistics(groups, np.zeros((2, 5)), steps=3, n_cands=3)
     np.testing.assert_allclose(controls[:, :2], [[1.0, 1.0], [2.0, 2.0]])

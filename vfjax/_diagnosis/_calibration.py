@@ -338,9 +338,12 @@ class _Jobs:
     frees: jax.Array  # (1 + jobs, n_params) fitted parameters of the control and each job
     bases: jax.Array  # (1 + jobs, columns, n_y) each refit's search directions
     owner: tuple  # candidate index of each job (in the diagnosis's list of candidates)
-    # (jobs,) 1 where a start's time shift and S are found afresh on each recording (a start
-    # far from the control's optimum, whose cycles the control's shift does not align)
-    reshift: jax.Array
+    # starts chosen on each recording: a pool of points whose time shift and S are found
+    # afresh there (`Problem.start`), ranked per candidate by the cost so profiled
+    pool: jax.Array  # (entries, n_y) NaN where the control's optimum is taken
+    pool_free: jax.Array  # (entries, n_params) fitted parameters of each entry
+    pool_owner: jax.Array  # (entries,) candidate index of each entry (-1: padding)
+    rank: jax.Array  # (jobs,) which of its candidate's entries a job starts from (-1: none)
 
 
 #: Each step's trial dampings, as multiples of the current one (six decades): near a grazing
@@ -425,26 +428,45 @@ def settled(jobs: _Jobs, steps: int) -> _Jobs:
 
 
 @eqx.filter_jit
-def _statistics(problem, y0, starts, frees, bases, reshift, data, steps: int, mesh):
+def _statistics(problem, y0, starts, frees, bases, pool, data, steps: int, mesh):
     """For each recording (rows of ``data``): the control's NMSE and point, and each job's
     NMSE (never above the control's) and point. The control takes ``2 * steps`` steps (one
     refit beside the many jobs: a control left short of its optimum would hand every
     candidate a fall of its own), and the jobs without a start of their own continue from
-    its optimum. With a ``mesh``, each device refits its share of the recordings."""
+    its optimum. With a ``mesh``, each device refits its share of the recordings.
+
+    ``pool`` is ``(entries, entries' free parameters, entries' candidates, jobs' ranks,
+    jobs' candidates)``: on each recording, every entry's time shift and S are found afresh
+    and its cost profiled (one simulation each), and a job with a rank ``r >= 0`` starts
+    from its candidate's entry of ``r``-th lowest cost: a choice made alike on every
+    recording, null or observed."""
+    entries, entry_free, entry_owner, ranks, job_owner = pool
+    n_names = len(problem.names)
 
     def one(measured):
         p = dataclasses.replace(problem, measured=measured)
         pc = dataclasses.replace(p, free=frees[0])
         yc, cc = levenberg_marquardt(pc.residual, y0, bases[0], 2 * steps)
+        if entries.shape[0]:
 
-        def job(start, free, basis, again):
+            def profiled(entry, free):
+                z = jnp.where(jnp.isnan(entry), yc, entry)[:n_names]
+                y, cost = dataclasses.replace(p, free=free).start(z)
+                return y, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+
+            chosen, profiled_cost = jax.vmap(profiled)(entries, entry_free)
+
+        def job(start, free, basis, rank, owner):
             pj = dataclasses.replace(p, free=free)
             y = jnp.where(jnp.isnan(start), yc, start)
-            y = jnp.where(again > 0, pj.start(y[: len(pj.names)])[0], y)
+            if entries.shape[0]:
+                mine = jnp.where(entry_owner == owner, profiled_cost, jnp.inf)
+                pick = jnp.argsort(mine)[jnp.maximum(rank, 0)]
+                y = jnp.where(rank >= 0, chosen[pick], y)
             yj, cj = levenberg_marquardt(pj.residual, y, basis, steps)
             return jnp.where(cj <= cc, cj, cc), jnp.where(cj <= cc, yj, yc)
 
-        cj, yj = jax.vmap(job)(starts, frees[1:], bases[1:], reshift)
+        cj, yj = jax.vmap(job)(starts, frees[1:], bases[1:], ranks, job_owner)
         return cc, yc, cj, yj
 
     def run(data):
@@ -463,6 +485,11 @@ def _mesh(n_recordings: int):
     if len(devices) < 2 or n_recordings % len(devices):
         return None
     return jax.sharding.Mesh(np.array(devices), ("recordings",))
+
+
+#: Jobs of a candidate with many basins that start from its pool about the anchor: the
+#: entries of lowest profiled cost on the recording
+_PICKED = 4
 
 
 def _start_values(cand: Candidate, model, whole_circle: bool = False) -> list[dict]:
@@ -561,9 +588,11 @@ def refit_groups(
     ]
     n_jobs = max(len(g.owner) for g in groups)
     width = max(g.bases.shape[1] for g in groups)
+    n_entries = max(g.pool.shape[0] for g in groups)
     out = []
     for g, w in zip(groups, levels):
         pad = n_jobs - len(g.owner)
+        more = n_entries - g.pool.shape[0]
         bases = jnp.pad(g.bases, ((0, 0), (0, width - g.bases.shape[1]), (0, 0)))
         g = dataclasses.replace(
             g,
@@ -571,7 +600,10 @@ def refit_groups(
             frees=jnp.concatenate([g.frees, jnp.repeat(g.frees[:1], pad, axis=0)]),
             bases=jnp.concatenate([bases, jnp.repeat(bases[:1], pad, axis=0)]),
             owner=g.owner + (-1,) * pad,
-            reshift=jnp.concatenate([g.reshift, jnp.zeros(pad)]),
+            pool=jnp.concatenate([g.pool, jnp.full((more, g.pool.shape[1]), jnp.nan)]),
+            pool_free=jnp.concatenate([g.pool_free, jnp.repeat(g.frees[:1], more, axis=0)]),
+            pool_owner=jnp.concatenate([g.pool_owner, jnp.full(more, -1)]),
+            rank=jnp.concatenate([g.rank, jnp.full(pad, -1)]),
         )
         out.append(g if w == result.sampling.warmup else settled(g, steps))
     return out
@@ -624,28 +656,33 @@ def refit_jobs(
 
     y0 = _point_of(problem, result)
     frees = [[1.0 if n in fitted else 0.0 for n in names]]
-    starts, owner, reshift = [], [], []
+    starts, owner, ranks = [], [], []
+    pool, pool_free, pool_owner = [], [], []
     for k in members:
         c = cands[k]
         own = set(fitted) | set(c.tested + c.extra)
+        free = [1.0 if n in own else 0.0 for n in names]
         begin = [coords(s) for s in _start_values(c, wide)]
-        again = [0.0] * len(begin)
+        rank = [-1] * len(begin)
         if anchor and not _single_basin(c):
             fixed = {n: v for n, v in anchor.items() if n in fitted}
             around = [coords({**s, **fixed}) for s in _start_values(c, wide, whole_circle=True)]
-            begin += around
-            again += [1.0] * len(around)
+            pool += around
+            pool_free += [free] * len(around)
+            pool_owner += [k] * len(around)
+            begin += [np.full(y0.size, np.nan)] * _PICKED
+            rank += list(range(_PICKED))
         if _single_basin(c):
             found = None if estimates is None else estimates[k]
             if found is not None and found.nmse < result.nmse:
                 begin.append(_point_of(problem, found))
             else:
                 begin.append(np.full(y0.size, np.nan))
-            again.append(0.0)
-        reshift += again
+            rank.append(-1)
+        ranks += rank
         for b in begin:
             starts.append(b)
-            frees.append([1.0 if n in own else 0.0 for n in names])
+            frees.append(free)
             owner.append(k)
     # each refit's search directions: its free parameters, the time shift and S
     n_y = y0.size
@@ -662,7 +699,10 @@ def refit_jobs(
         jnp.asarray(np.array(frees)),
         jnp.asarray(bases),
         tuple(owner),
-        jnp.asarray(reshift),
+        jnp.asarray(np.array(pool).reshape(len(pool), y0.size)),
+        jnp.asarray(np.array(pool_free).reshape(len(pool), len(names))),
+        jnp.asarray(np.array(pool_owner, dtype=np.int32)),
+        jnp.asarray(np.array(ranks, dtype=np.int32)),
     )
 
 
@@ -684,7 +724,13 @@ def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
                 jobs.starts,
                 jobs.frees,
                 jobs.bases,
-                jobs.reshift,
+                (
+                    jobs.pool,
+                    jobs.pool_free,
+                    jobs.pool_owner,
+                    jobs.rank,
+                    jnp.asarray(jobs.owner, dtype=jnp.int32),
+                ),
                 jnp.asarray(data),
                 int(steps),
                 _mesh(len(data)),
@@ -982,7 +1028,7 @@ def _interval(jobs, source, observed, y, k, cand, sds, calibration, n_cands) -> 
     from_y = dataclasses.replace(
         jobs,
         starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts),
-        reshift=jnp.where(own[:, 0], 0.0, jobs.reshift),
+        rank=jnp.where(own[:, 0], -1, jobs.rank),
     )
     drawn = source.draw(n, *sds, model=model, shift=shift, problem=jobs.problem)
     rows = np.concatenate([observed, drawn])
