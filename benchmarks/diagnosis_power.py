@@ -25,7 +25,7 @@ table from all of it. Recordings run seed by seed (every effect, strength, subje
 of seed 0 first), so that a partial run covers every case alike.
 
 Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none]
-[--strength weak|medium|strong] [--limit N]
+[--strength weak|medium|strong] [--seed S] [--limit N] [--pool N]
 """
 
 import argparse
@@ -144,12 +144,13 @@ def _commit() -> str:
 COMMIT = _commit()
 
 
-def run_case(case) -> dict:
+def run_case(case, calibration=None) -> dict:
     key, subject, effect, strength, noise, seed = case
+    calibration = calibration or vfjax.Calibration()
     rec, truth = make_recording(subject, effect, strength, noise, seed)
     t0 = time.perf_counter()
     first = vfjax.fit_recording(rec, progress=False)
-    d = vfjax.diagnose(first, rec)
+    d = vfjax.diagnose(first, rec, calibration=calibration)
     row = {
         "key": key,
         "subject": subject,
@@ -164,6 +165,7 @@ def run_case(case) -> dict:
         "ranking": d.ranking,
         "p_values": {n: f.p_value for n, f in d.refits.items()},
         "replicates": d.calibrated.replicates if d.calibrated is not None else None,
+        "pool": calibration.pool,
     }
     if effect is not None:
         name, values, _ = EFFECTS[effect]
@@ -235,6 +237,9 @@ def main():
     ap.add_argument("--strength", choices=STRENGTHS, help="only this strength of the effects")
     ap.add_argument("--seed", type=int, help="only this seed's recordings")
     ap.add_argument("--limit", type=int, help="stop after this many new recordings")
+    ap.add_argument(
+        "--pool", type=int, default=0, help="vfjax.Calibration's pool (default 0: none)"
+    )
     args = ap.parse_args()
     use_cpu_cores(None)
     out = pathlib.Path(args.out)
@@ -248,7 +253,7 @@ def main():
     if args.strength:
         todo = [c for c in todo if c[3] is None or STRENGTHS[c[3]] == args.strength]
     for case in todo[: args.limit]:
-        row = run_case(case)
+        row = run_case(case, vfjax.Calibration(pool=args.pool))
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")
         rows.append(row)

@@ -38,9 +38,10 @@ off, or a user's own term), two questions:
    rounded like the recording. On the recording and on every null recording alike, one
    compiled program refits the control (a few Levenberg-Marquardt steps from the fit) and
    each candidate from the control's optimum with its parameters at a fixed lattice of
-   starts, and from its search's fit (a modulation, whose error has many basins, from the
-   best of a pool of starts about the recording's starting model instead, `refit_jobs`); a
-   candidate's refit never ends above the control. Each fall is standardised by
+   starts, and from its search's fit (a modulation, whose error has many basins, not from
+   its search's fit but, with ``Calibration.pool``, from the best of a pool of starts about
+   the recording's starting model, `refit_jobs`); a candidate's refit never ends above the
+   control. Each fall is standardised by
    its F test's p-value (degrees of freedom differ between candidates); a candidate's
    family-wise p-value is the share of null recordings whose smallest standardised p over
    all candidates is at most the candidate's own, (1 + count) / (1 + null recordings).

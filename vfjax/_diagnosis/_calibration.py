@@ -56,6 +56,11 @@ class Calibration(eqx.Module):
         variability: simulate the recording's cycle-to-cycle variability in the null
             recordings (else white noise only).
         seed: seed of the null recordings' noise and variability.
+        pool: for a candidate with many basins (the pressure modulation), how many starts
+            of its pool about the recording's starting model are refitted on each recording
+            (the ones of lowest profiled cost, `refit_jobs`); 0: no pool. Four find a
+            modulation that the first fit imitates with a stretched closure hold, at half
+            as much again of the statistic's refits (benchmarks/README.md).
     """
 
     replicates: int = eqx.field(default=111, converter=int)
@@ -65,8 +70,11 @@ class Calibration(eqx.Module):
     steps: int = eqx.field(default=10, converter=int)
     variability: bool = True
     seed: int = eqx.field(default=0, converter=int)
+    pool: int = eqx.field(default=0, converter=int)
 
     def __check_init__(self):
+        if self.pool < 0:
+            raise ValueError(f"Calibration: pool must be >= 0, got {self.pool}")
         if self.replicates < 1 or self.batch < 1 or self.interval_replicates < 2:
             raise ValueError(
                 "Calibration: replicates and batch must be >= 1 and interval_replicates >= 2, "
@@ -487,11 +495,6 @@ def _mesh(n_recordings: int):
     return jax.sharding.Mesh(np.array(devices), ("recordings",))
 
 
-#: Jobs of a candidate with many basins that start from its pool about the anchor: the
-#: entries of lowest profiled cost on the recording
-_PICKED = 4
-
-
 def _start_values(cand: Candidate, model, whole_circle: bool = False) -> list[dict]:
     """The candidate's fixed starts: its tested parameters a step off their off-values (a
     third of their search scale; two-sided single parameters at the off-value), over a
@@ -560,7 +563,13 @@ def _point_of(problem, fit: FitResult) -> np.ndarray:
 
 
 def refit_groups(
-    result: FitResult, recording: Recording, cands, estimates, steps: int, anchor=None
+    result: FitResult,
+    recording: Recording,
+    cands,
+    estimates,
+    steps: int,
+    anchor=None,
+    picked: int = 0,
 ) -> list:
     """The statistic's refits of ``result`` on ``recording``, in groups of one warm-up each
     (`refit_jobs`): the candidates that need no longer warm-up than the fit's are refitted
@@ -583,6 +592,7 @@ def refit_groups(
             [k for k in range(len(cands)) if warmups[k] == w],
             w,
             anchor,
+            picked,
         )
         for w in levels
     ]
@@ -617,6 +627,7 @@ def refit_jobs(
     members,
     warmup: float,
     anchor: dict | None = None,
+    picked: int = 0,
 ) -> _Jobs:
     """The statistic's refits of ``result`` on ``recording`` for the candidates ``members``
     (indices into ``cands``) at ``warmup`` (s): the model extended by every candidate (held
@@ -633,7 +644,7 @@ def refit_jobs(
       the fitted parameters at the anchor and phases over the whole cycle. On each
       recording every entry's time shift and S are found afresh (`Problem.start`: the
       control's shift does not align the cycles of a model that far from it) and the
-      `_PICKED` entries of lowest cost so profiled are refitted.
+      ``picked`` entries of lowest cost so profiled are refitted (`Calibration.pool`).
 
     A fit without the effect can bend the fitted parameters far from where the effect needs
     them (a closure hold stretched to imitate a pressure modulation's skipped closures: on
@@ -679,14 +690,14 @@ def refit_jobs(
         free = [1.0 if n in own else 0.0 for n in names]
         begin = [coords(s) for s in _start_values(c, wide)]
         rank = [-1] * len(begin)
-        if anchor and not _single_basin(c):
+        if picked and anchor and not _single_basin(c):
             fixed = {n: v for n, v in anchor.items() if n in fitted}
             around = [coords({**s, **fixed}) for s in _start_values(c, wide, whole_circle=True)]
             pool += around
             pool_free += [free] * len(around)
             pool_owner += [k] * len(around)
-            begin += [np.full(y0.size, np.nan)] * _PICKED
-            rank += list(range(_PICKED))
+            begin += [np.full(y0.size, np.nan)] * picked
+            rank += list(range(picked))
         if _single_basin(c):
             found = None if estimates is None else estimates[k]
             if found is not None and found.nmse < result.nmse:
@@ -923,7 +934,7 @@ def calibrate(
     ``estimates`` (such as a larger search for the effect the test ranks first)."""
     cands = list(cands)
     steps = calibration.steps
-    groups = refit_groups(result, recording, cands, estimates, steps, anchor)
+    groups = refit_groups(result, recording, cands, estimates, steps, anchor, calibration.pool)
     period = 1.0 / fundamental_frequency(result.fitted_gaw(recording), recording.fps)
     own, _, _ = prepare(
         result.model, recording, tuple(result.params), result.sampling, period, None
