@@ -1016,25 +1016,16 @@ def calibrate(
         if family[k] <= alpha:
             jobs, y = group_of[k], yb[k][0]
             found = None if estimates is None else estimates[k]
-            if found is not None and found.nmse < cb[0, k]:
-                # a fit after another warm-up maps to a point that can fit worse here (the
-                # state at the first frame, a modulation's phase): judged by its own error
-                y_found = _point_of(jobs.problem, found)
-                if _nmse_at(jobs, k, y_found) < cb[0, k]:
-                    y = y_found
+            # a fit after another warm-up maps to a point that can fit far worse here (the
+            # state at the first frame carries a modulation's history): only a fit in the
+            # group's own sampling, where its point is exact, starts the refinement
+            same = found is not None and found.sampling.warmup == float(jobs.problem.grid.t_start)
+            if same and found.nmse < cb[0, k]:
+                y = _point_of(jobs.problem, found)
             values[k], intervals[k] = _interval(
                 jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands
             )
     return dataclasses.replace(tested, values=tuple(values), intervals=tuple(intervals))
-
-
-def _nmse_at(jobs: _Jobs, k: int, y) -> float:
-    """The NMSE of candidate ``k``'s refit problem (in its group ``jobs``) at the point
-    ``y`` on the recording."""
-    free = jobs.frees[1 + jobs.owner.index(k)]
-    residual = dataclasses.replace(jobs.problem, free=free).residual(jnp.asarray(y))
-    cost = float(jnp.sum(residual**2))
-    return cost if math.isfinite(cost) else math.inf
 
 
 def _interval(jobs, source, observed, y, k, cand, sds, calibration, n_cands) -> tuple:
