@@ -32,7 +32,6 @@ from ..descriptors import cycle_starts, describe, fundamental_frequency
 from ..recording import Recording
 from ..terms.variability import AmplitudeJitter, TimingJitter
 from ._candidates import Candidate, extended
-from ._score import wrap_angle
 
 
 class Calibration(eqx.Module):
@@ -514,12 +513,8 @@ def _start_values(cand: Candidate, model, whole_circle: bool = False) -> list[di
     grid = [cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, min(4, len(cand.grid)))]
     directions = cand.directions
     if whole_circle and len(directions) > 1:
-        first = directions[0]
-        phases = [k for k in first if all(k in d for d in directions)]
-        directions = [
-            {**first, **{k: wrap_angle(first[k] + a) for k in phases}}
-            for a in (0.0, 2.0 * math.pi / 3.0, -2.0 * math.pi / 3.0)
-        ]
+        third = 2.0 * math.pi / 3.0
+        directions = [{**directions[0], **t} for t in cand.turned((0.0, third, -third))]
     return [{**g, **d, **tested} for g in grid for d in directions]
 
 

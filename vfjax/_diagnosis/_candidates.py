@@ -1,6 +1,7 @@
 """Candidate effects: a term at its off-value and how the score test and the refits treat it."""
 
 import dataclasses
+import math
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -85,6 +86,21 @@ class Candidate:
     @property
     def dof(self) -> int:
         return len(self.tested) * len(self.directions)
+
+    def turned(self, offsets) -> list[dict]:
+        """The phases (the settings that every direction sets, such as a modulation's
+        phi) of the first direction moved by each of ``offsets`` (rad), wrapped to
+        [-pi, pi); one empty setting where the directions have no phase."""
+        first = self.directions[0]
+        phases = [k for k in first if all(k in d for d in self.directions)]
+        if not phases:
+            return [{}]
+        return [{k: wrap_angle(first[k] + a) for k in phases} for a in offsets]
+
+
+def wrap_angle(angle):
+    """``angle`` (rad) wrapped to [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def default_candidates(model) -> list[Candidate]:

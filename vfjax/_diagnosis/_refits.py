@@ -12,7 +12,7 @@ from ..presets import initial_model
 from ..recording import Recording
 from ._candidates import Candidate, extended
 from ._options import DEFAULT_PLAN, RefitPlan
-from ._score import EffectScore, wrap_angle
+from ._score import EffectScore
 
 
 def refit_starts(
@@ -40,16 +40,10 @@ def refit_starts(
         # far from the linear regime the one-step estimates mislead: add a lattice over the
         # grid (four settings) and, for a sine/cosine pair, three phases, with the tested
         # parameters one range-scale step off
-        phases = [k for k in cand.directions[0] if all(k in d for d in cand.directions)]
         lattice = [
-            {
-                **ests[0],
-                **g,
-                **{t: cand.point[t] + _range(t)[2] for t in cand.tested},
-                **{k: wrap_angle(cand.directions[0][k] + a) for k in phases},
-            }
+            {**ests[0], **g, **{t: cand.point[t] + _range(t)[2] for t in cand.tested}, **turn}
             for g in (cand.grid[int(i)] for i in np.linspace(0, len(cand.grid) - 1, 4))
-            for a in ((0.0, 2.1, -2.1) if phases else (0.0,))
+            for turn in cand.turned((0.0, 2.1, -2.1))
         ]
         if anchor:
             lattice = [{**p, **anchor} if i % 2 else p for i, p in enumerate(lattice)]

@@ -15,7 +15,7 @@ from .._fit import FitResult
 from ..descriptors import fundamental_frequency
 from ..integrator import SampledGrid, sampled_grid, simulate_frames, window_size
 from ..recording import Recording
-from ._candidates import Candidate, as_candidates, extended
+from ._candidates import Candidate, as_candidates, extended, wrap_angle
 
 
 @dataclasses.dataclass(frozen=True)
@@ -302,7 +302,3 @@ def _estimate(cand, step, setting):
     for d in cand.directions[:1]:
         est.update({k: v for k, v in d.items() if k not in est})
     return est
-
-
-def wrap_angle(angle):
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
