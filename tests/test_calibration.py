@@ -12,10 +12,13 @@ import vfjax
 from vfjax._diagnosis._calibration import (
     Calibrated,
     Calibration,
+    _fit_point,
+    _NullSource,
     calibrate,
     family_p_values,
-    levenberg_marquardt,
 )
+from vfjax._diagnosis._cycles import variability_test
+from vfjax._fit._polish import levenberg_marquardt
 from vfjax.diagnosis import default_candidates
 
 FPS = 4000.0
@@ -129,6 +132,65 @@ def test_a_hidden_gap_is_significant_against_every_null_recording(shared_dir):
     assert cal.p_values[i] == pytest.approx(1 / (cal.replicates + 1))
     assert cal.values[i]["a_gap"] == pytest.approx(0.01, rel=0.2)  # the answer: 0.01 cm²
     assert all(p > 0.05 for j, p in enumerate(cal.p_values) if j != i)
+
+
+def _drawn_sd(values, slot, t_first, t_last, trend):
+    """The deviation of per-slot ``values`` over the slots whose whole support (a slot
+    either side of the middle) lies between two times, about a line (``trend``) or their
+    mean (numpy's own fit)."""
+    middles = (np.arange(len(values)) + 0.5) * slot
+    v = np.asarray(values)[(middles >= t_first + slot) & (middles <= t_last - slot)]
+    x = np.arange(v.size)
+    centre = np.polyval(np.polyfit(x, v, 1), x) if trend else v.mean()
+    return float(np.sqrt(np.sum((v - centre) ** 2) / (v.size - (2 if trend else 1))))
+
+
+def test_hidden_cycle_to_cycle_variability_is_found_and_sized(n3):
+    """An N3 recording (401 frames, 1 px noise) with timing offsets of 0.1 ms and amplitude
+    factors of 5 % per cycle, fitted without them: its cycle-to-cycle misfit lies beyond
+    every white-noise recording of the fit, and the per-cycle fit recovers both spreads
+    within 20 % of those drawn over the cycles it counts (the offsets' about a line: a
+    trend is a change of period). A recording of the fitted model
+    with white noise only is not flagged, and its intervals hold zero."""
+    f0 = vfjax.descriptors.fundamental_frequency(_area(n3, 400, 0.02), FPS)
+    period = 1.0 / f0
+    timing = vfjax.TimingJitter.random(1e-4, period, duration=0.3, seed=13)
+    amplitude = vfjax.AmplitudeJitter.random(0.05, period, duration=0.3, seed=14)
+    model = n3.with_term(timing).with_term(amplitude)
+    rec = vfjax.datasets.demo_recording("N3", 1.0, 6, FPS, 401, model=model)
+    fit = vfjax.fit_recording(rec, progress=False)
+    assert fit.nmse > 5e-3  # the model without variability misses it
+    measured = 1.0 / vfjax.descriptors.fundamental_frequency(fit.fitted_gaw(rec), FPS)
+    own = _problem(fit.model, rec, fit, measured)
+    source = _NullSource(own, fit.model, fit.time_shift, rec, measured, seed=0)
+    jittered = _problem(source.model, rec, fit, measured)
+    found = variability_test(source, jittered, _fit_point(jittered, fit), 99, 0.95)
+    assert found.p_value == pytest.approx(0.01) and found.needed(0.01)
+    first = 0.0277  # demo_recording's first frame
+    last = first + 400 / FPS
+    truth_t = _drawn_sd(timing.offsets, period, first, last, trend=True)
+    truth_a = _drawn_sd(amplitude.factors, period, first, last, trend=False)
+    assert found.cycles == pytest.approx((last - first) / period - 2, abs=1)
+    assert found.timing_sd == pytest.approx(truth_t, rel=0.2)
+    assert found.amplitude_sd == pytest.approx(truth_a, rel=0.2)
+    assert found.timing_interval[0] < truth_t < found.timing_interval[1]
+    assert found.amplitude_interval[0] < truth_a < found.amplitude_interval[1]
+    assert found.fall > 0.9  # to the noise: the fit's error is the variability
+    assert "from cycle to cycle over" in found.words()
+    # the fitted model with white noise only: nothing beyond the noise
+    null = source.draw(1, 0.0, 0.0)[0, : rec.n_frames]
+    plain = vfjax.Recording(area=null, fps=FPS, name="null")
+    source = _NullSource(own, fit.model, fit.time_shift, plain, measured, seed=1)
+    jittered = _problem(source.model, plain, fit, measured)
+    clear = variability_test(source, jittered, _fit_point(jittered, fit), 99, 0.95)
+    assert clear.p_value > 0.05 and not clear.needed(0.05)
+    assert clear.timing_interval[0] == 0.0 and clear.amplitude_interval[0] == 0.0
+
+
+def _problem(model, rec, fit, period):
+    from vfjax._fit._problem import prepare
+
+    return prepare(model, rec, tuple(fit.params), fit.sampling, period, None)[0]
 
 
 def test_family_p_values_of_a_candidate_shifted_on_every_recording():

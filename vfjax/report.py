@@ -167,6 +167,14 @@ def _round_lines(i: int, r: Round, recording: Recording, folder: pathlib.Path, d
         save_figure(fig, folder / f"{stem}_candidates.png", dpi=dpi)
         plt.close(fig)
         lines += ["", f"![error each candidate reaches]({stem}_candidates.png)"]
+    cycles = d.variability
+    if cycles is not None:
+        lines += [
+            "",
+            f"**Cycle-to-cycle variability.** Against {cycles.replicates} recordings of the "
+            f"fitted model with white noise only, p = {_p(cycles.p_value)}: {cycles.words()} "
+            f"({cycles.level:.0%} intervals).",
+        ]
     lines += ["", f"**Verdict.** {d.verdict}", ""]
     if r.extended is not None:
         added = {n: v for n, v in r.extended.params.items() if n not in r.fit.params}

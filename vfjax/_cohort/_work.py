@@ -141,8 +141,8 @@ def fit_row(entry: CohortEntry, rec: Recording, first, seconds: float) -> dict:
 
 def study_row(entry: CohortEntry, rec: Recording, study, seconds: float) -> dict:
     """The row of a recording fitted and diagnosed (`vfjax.Investigation`): NMSE before and
-    after, the effects added with their calibrated p-values and intervals, the outcome and
-    the final model's parameters."""
+    after, the effects added with their calibrated p-values and intervals, the final round's
+    test of cycle-to-cycle variability, the outcome and the final model's parameters."""
     outcome = study.outcome(rec)
     final = study.final
     row = {
@@ -165,6 +165,11 @@ def study_row(entry: CohortEntry, rec: Recording, study, seconds: float) -> dict
             unit = final.units.get(name, "")
             row[f"{name} low [{unit}]"] = float(low)
             row[f"{name} high [{unit}]"] = float(high)
+    cycles = study.rounds[-1].diagnosis.variability
+    if cycles is not None:  # cycle-to-cycle variability, tested on the final round
+        row["cycle variability p"] = cycles.p_value
+        row["timing spread [s]"] = cycles.timing_sd
+        row["amplitude spread [1]"] = cycles.amplitude_sd
     row["conclusion"] = outcome.words
     row["seconds"] = seconds
     if final.failed:

@@ -56,8 +56,22 @@ by their centred statistic (`Calibrated.ranking`); by score p-value without refi
 effect is needed, `Diagnosis.verdict` says so in words, with where the model fails
 (`vfjax.compare`).
 
+3. **Cycle-to-cycle variability** (`CycleVariability`, `Diagnosis.variability`). The
+   candidates' null recordings carry the recording's own variability; variability itself is
+   tested against null recordings of the fitted model with white noise only. The statistic
+   is the misfit that changes from cycle to cycle (`cycle_deviation`: the residual cut at
+   the fitted GAW's cycles, less the misfit every cycle shares, which an effect may
+   explain), its p-value a rank among the null recordings'. Its size: one timing offset
+   (s) and one amplitude factor per cycle (`TimingJitter`, `AmplitudeJitter`, slots of one
+   period), fitted to the recording together with the fitted parameters; the spread of the
+   offsets about a line (a trend is a change of period) and of the factors about their mean,
+   less the spread that the same fit finds on a few white-noise recordings, with chi-square
+   intervals on the cycles' count. The recording varies beyond its noise when the p-value is
+   at most alpha and an interval excludes zero.
+
 - ``_options``: `Criteria` and `RefitPlan`;
 - ``_calibration``: `Calibration`, the null recordings and the calibrated statistic;
+- ``_cycles``: `CycleVariability`, cycle-to-cycle variability tested and sized;
 - ``_candidates``: `Candidate`, the catalogue's candidates and the model extended by them;
 - ``_score``: the score tests and the GAW's sensitivities;
 - ``_refits``: the refits' starts, `refit_each`, the confirming refit;
@@ -69,6 +83,7 @@ effect is needed, `Diagnosis.verdict` says so in words, with where the model fai
 
 from ._calibration import Calibrated, Calibration, Variability, calibrate
 from ._candidates import DEFAULT_CANDIDATES, Candidate, default_candidates
+from ._cycles import CycleVariability, cycle_deviation
 from ._diagnose import diagnose, extend
 from ._folds import AsymmetryTest, asymmetry_test, per_fold_nmse
 from ._investigate import EXPLAINED_SHARE, Investigation, Outcome, Round, extend_from, investigate
@@ -86,6 +101,8 @@ __all__ = [
     "Calibration",
     "Candidate",
     "Criteria",
+    "CycleVariability",
+    "cycle_deviation",
     "Diagnosis",
     "EffectRefit",
     "EffectScore",

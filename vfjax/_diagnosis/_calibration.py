@@ -24,14 +24,15 @@ import numpy as np
 from scipy import stats
 
 from .._fit import FitResult, search_range
-from .._fit._polish import jacobian_columns
+from .._fit._polish import levenberg_marquardt
 from .._fit._problem import prepare
 from .._sampling import length_bucket
 from ..compare import noise_level
-from ..descriptors import cycle_starts, describe, fundamental_frequency
+from ..descriptors import describe, fundamental_frequency
 from ..recording import Recording
 from ..terms.variability import AmplitudeJitter, TimingJitter
 from ._candidates import Candidate, extended
+from ._cycles import CycleVariability, cycle_deviation, variability_test
 
 
 class Calibration(eqx.Module):
@@ -278,30 +279,6 @@ def variability_kind(source: "_NullSource", n: int = 8) -> tuple[float, float, f
     return *want, *sd
 
 
-def cycle_deviation(area, fitted, fps: float) -> float:
-    """The part of a GAW's misfit that changes from cycle to cycle, as a share of its
-    squared area: the residual (``area`` - ``fitted``) cut at the fitted GAW's cycles,
-    each resampled to one common length, minus their mean (the misfit that every cycle
-    shares, which an effect may explain); the sum of squares left, over sum(area²). NaN
-    with fewer than three cycles."""
-    a, g = np.asarray(area, float), np.asarray(fitted, float)
-    starts = cycle_starts(g, fps) * fps
-    if starts.size < 4:
-        return math.nan
-    length = max(int(round(float(np.median(np.diff(starts))))), 2)
-    frames = np.arange(a.size)
-    r = a - g
-    rows = np.stack(
-        [
-            np.interp(s0 + (s1 - s0) * np.arange(length) / length, frames, r)
-            for s0, s1 in zip(starts[:-1], starts[1:])
-        ]
-    )
-    per_point = float(np.mean(np.diff(starts))) / length  # frames per resampled point
-    dev = rows - rows.mean(axis=0)
-    return float(np.sum(dev**2) * per_point / np.sum(a**2))
-
-
 def _deviation(source, areas) -> float:
     """Mean `cycle_deviation` of simulated recordings (rows) about the source's clean GAW."""
     rec = source.recording
@@ -351,65 +328,6 @@ class _Jobs:
     pool_free: jax.Array  # (entries, n_params) fitted parameters of each entry
     pool_owner: jax.Array  # (entries,) candidate index of each entry (-1: padding)
     rank: jax.Array  # (jobs,) which of its candidate's entries a job starts from (-1: none)
-
-
-#: Each step's trial dampings, as multiples of the current one (six decades): near a grazing
-#: closure, where one more or one fewer cycle reaches contact, a Gauss-Newton step is good only
-#: within a small region, and one trial per step can spend every step shrinking towards it.
-_DAMPING_TRIALS = (1e-3, 1e-1, 1e1, 1e3)
-_DAMPING_RISE = 1e4  # after a step that no trial improves
-
-
-def levenberg_marquardt(residual, y0, basis, steps: int):
-    """``steps`` Levenberg-Marquardt steps on ``residual`` from ``y0`` within the span of the
-    rows of ``basis`` (unit vectors of the free coordinates; zero rows are ignored), keeping
-    the best point: (point, its sum of squares).
-
-    A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and
-    the solve traces anywhere (inside `jax.shard_map` too). Each step: the Jacobian's
-    columns by forward mode (one batched jvp, which also gives the residual) and damped
-    Gauss-Newton steps with Marquardt's scaling at four dampings spread over six decades
-    about the current one (`_DAMPING_TRIALS`), evaluated one after the other; the best one
-    is taken if it improves, and its damping becomes the current one; if none improves, the
-    damping rises by `_DAMPING_RISE`. The Jacobian costs most of a step.
-
-    The trials run in a `lax.map`, not a `vmap`: vmapped, the statistic's program split
-    over two CPU devices (`jax.shard_map`) hung (jax 0.10.2: the first call on the shared
-    syn_gap's fit with its gap never returned, every XLA thread idle)."""
-
-    if steps < 1:
-        c0 = jnp.sum(residual(y0) ** 2)
-        return y0, jnp.where(jnp.isfinite(c0), c0, jnp.inf)
-    ratios = jnp.asarray(_DAMPING_TRIALS, y0.dtype)
-
-    def step(carry, _):
-        y, _, damping = carry
-        # the residual at y comes with its Jacobian: no simulation of its own
-        r, j = jacobian_columns(residual, y, basis)
-        c = jnp.sum(r**2)
-        c = jnp.where(jnp.isfinite(c), c, jnp.inf)
-        h = j.T @ j
-        g = j.T @ r
-        d = jnp.diag(h)
-        d = jnp.where(d > 0, d, 1.0)  # a zero column (a padding direction) does not move
-
-        def trial(level):
-            point = y + basis.T @ -jnp.linalg.solve(h + level * jnp.diag(d), g)
-            cost = jnp.sum(residual(point) ** 2)
-            return point, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
-
-        levels = damping * ratios
-        points, costs = jax.lax.map(trial, levels)  # see the docstring
-        best = jnp.argmin(costs)
-        better = costs[best] < c
-        y = jnp.where(better, points[best], y)
-        c = jnp.where(better, costs[best], c)
-        damping = jnp.clip(jnp.where(better, levels[best], damping * _DAMPING_RISE), 1e-12, 1e12)
-        return (y, c, damping), None
-
-    init = (y0, jnp.asarray(jnp.inf, y0.dtype), jnp.asarray(1e-2, y0.dtype))
-    (y, c, _), _ = jax.lax.scan(step, init, None, length=steps)
-    return y, c
 
 
 @eqx.filter_jit
@@ -852,6 +770,9 @@ class Calibrated:
         intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
             alpha, else None.
         interval_level: the intervals' confidence level (``Calibration.interval``).
+        cycles: the test of cycle-to-cycle variability against the fitted model with white
+            noise only, and its size (`vfjax.diagnosis.CycleVariability`; None with fewer
+            than four cycles in the recording).
     """
 
     candidates: tuple
@@ -868,6 +789,7 @@ class Calibrated:
     variability: Variability
     intervals: tuple
     interval_level: float
+    cycles: CycleVariability | None = None
 
     def ranking(self) -> list[str]:
         """The candidates' names, best first: by family-wise p-value, ties (several
@@ -919,10 +841,13 @@ def calibrate(
     parametric bootstrap: ``calibration.interval_replicates`` recordings simulated from the
     model with the effect at its fitted values, with the same variability and noise, each
     refitted from those values; the estimate plus or minus the normal quantile times their
-    spread). ``estimates``: per candidate, a fit of the model with it (`FitResult` or None,
-    such as a search's refit on the recording): a start of the statistic's refits for a
-    candidate with a single basin (`refit_jobs`), and, where its error is below the
-    statistic's refit's, the start of the refinement. ``anchor``: values of the fitted
+    spread). Last, the test of cycle-to-cycle variability (`variability_test`), against
+    null recordings with white noise only.
+
+    ``estimates``: per candidate, a fit of the model with it (`FitResult` or None, such as
+    a search's refit on the recording): a start of the statistic's refits for a candidate
+    with a single basin (`refit_jobs`), and, where its error is below the statistic's
+    refit's, the start of the refinement. ``anchor``: values of the fitted
     parameters (`anchor_values`) about which a candidate with many basins has a pool of
     starts (`refit_jobs`). ``refine``: called with the test's result (before its
     intervals), returns the estimates that start the refinement in place of
@@ -1020,7 +945,21 @@ def calibrate(
             values[k], intervals[k] = _interval(
                 jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands
             )
-    return dataclasses.replace(tested, values=tuple(values), intervals=tuple(intervals))
+    # cycle-to-cycle variability (its null recordings drawn last: the candidates' are the
+    # seed's first draws)
+    jittered, _, _ = prepare(
+        source.model, recording, tuple(result.params), result.sampling, period, None
+    )
+    cycles = variability_test(
+        source,
+        jittered,
+        _fit_point(jittered, result),
+        calibration.replicates,
+        calibration.interval,
+    )
+    return dataclasses.replace(
+        tested, values=tuple(values), intervals=tuple(intervals), cycles=cycles
+    )
 
 
 def _interval(jobs, source, observed, y, k, cand, sds, calibration, n_cands) -> tuple:

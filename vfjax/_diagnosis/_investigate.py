@@ -107,6 +107,12 @@ class Investigation:
                 f"{what} (NMSE {first:.3%} -> {final:.3%}, noise floor {floor:.3%}); the "
                 f"model still misses: {'; '.join(failures[:3])}"
             )
+        cycles = self.rounds[-1].diagnosis.variability
+        if cycles is not None and cycles.needed(self.rounds[-1].diagnosis.criteria.alpha):
+            words += (
+                f"; it varies from cycle to cycle beyond its noise (calibrated p = "
+                f"{cycles.p_value:.2g}): {cycles.words()}"
+            )
         return Outcome(
             recording_name=self.recording_name,
             status=status,

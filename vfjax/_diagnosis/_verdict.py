@@ -106,6 +106,13 @@ class Diagnosis:
         return min(self.result.nmse, self.control.nmse) if self.control else self.result.nmse
 
     @property
+    def variability(self):
+        """The test of cycle-to-cycle variability against white noise alone, and its size
+        (`vfjax.diagnosis.CycleVariability`); None without refits or with fewer than four
+        cycles."""
+        return None if self.calibrated is None else self.calibrated.cycles
+
+    @property
     def best(self) -> str | None:
         """The effect to add (the top needed one), or None."""
         return self.needed[0] if self.needed else None
@@ -218,7 +225,24 @@ def verdict_text(d: Diagnosis) -> str:
             f"recording's noise and cycle-to-cycle variability (smallest p = {smallest:.2g}; "
             f"NMSE {before:.3%}, {floor})"
         )
+    cycles = _cycles_text(d)
+    if cycles:
+        lines.append(cycles)
     failures = d.comparison.failures()
     if failures:
         lines.append("Where the model fails: " + "; ".join(failures[:3]))
     return ". ".join(lines) + "."
+
+
+def _cycles_text(d: Diagnosis) -> str:
+    """The sentence on cycle-to-cycle variability, where the recording shows it (said only
+    where no effect is needed: a missing effect's misfit, such as a gap's, trades with the
+    per-cycle factors, so the extended fit's diagnosis is the one to read it from)."""
+    v = d.variability
+    if v is None or not v.needed(d.criteria.alpha):
+        return ""
+    return (
+        f"The recording also varies from cycle to cycle beyond its noise (p = {v.p_value:.2g} "
+        f"against {v.replicates} recordings of the fitted model with white noise only): "
+        f"{v.words()} ({v.level:.0%} intervals)"
+    )

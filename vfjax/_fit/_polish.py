@@ -27,6 +27,65 @@ def jacobian_columns(fn, y, basis):
     return jax.vmap(lambda t: jax.jvp(fn, (y,), (t,)), out_axes=(None, 1))(basis)
 
 
+#: Each step's trial dampings, as multiples of the current one (six decades): near a grazing
+#: closure, where one more or one fewer cycle reaches contact, a Gauss-Newton step is good only
+#: within a small region, and one trial per step can spend every step shrinking towards it.
+_DAMPING_TRIALS = (1e-3, 1e-1, 1e1, 1e3)
+_DAMPING_RISE = 1e4  # after a step that no trial improves
+
+
+def levenberg_marquardt(residual, y0, basis, steps: int):
+    """``steps`` Levenberg-Marquardt steps on ``residual`` from ``y0`` within the span of the
+    rows of ``basis`` (unit vectors of the free coordinates; zero rows are ignored), keeping
+    the best point: (point, its sum of squares).
+
+    A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and
+    the solve traces anywhere (inside `jax.shard_map` too). Each step: the Jacobian's
+    columns by forward mode (one batched jvp, which also gives the residual) and damped
+    Gauss-Newton steps with Marquardt's scaling at four dampings spread over six decades
+    about the current one (`_DAMPING_TRIALS`), evaluated one after the other; the best one
+    is taken if it improves, and its damping becomes the current one; if none improves, the
+    damping rises by `_DAMPING_RISE`. The Jacobian costs most of a step.
+
+    The trials run in a `lax.map`, not a `vmap`: vmapped, the statistic's program split
+    over two CPU devices (`jax.shard_map`) hung (jax 0.10.2: the first call on the shared
+    syn_gap's fit with its gap never returned, every XLA thread idle)."""
+
+    if steps < 1:
+        c0 = jnp.sum(residual(y0) ** 2)
+        return y0, jnp.where(jnp.isfinite(c0), c0, jnp.inf)
+    ratios = jnp.asarray(_DAMPING_TRIALS, y0.dtype)
+
+    def step(carry, _):
+        y, _, damping = carry
+        # the residual at y comes with its Jacobian: no simulation of its own
+        r, j = jacobian_columns(residual, y, basis)
+        c = jnp.sum(r**2)
+        c = jnp.where(jnp.isfinite(c), c, jnp.inf)
+        h = j.T @ j
+        g = j.T @ r
+        d = jnp.diag(h)
+        d = jnp.where(d > 0, d, 1.0)  # a zero column (a padding direction) does not move
+
+        def trial(level):
+            point = y + basis.T @ -jnp.linalg.solve(h + level * jnp.diag(d), g)
+            cost = jnp.sum(residual(point) ** 2)
+            return point, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+
+        levels = damping * ratios
+        points, costs = jax.lax.map(trial, levels)  # see the docstring
+        best = jnp.argmin(costs)
+        better = costs[best] < c
+        y = jnp.where(better, points[best], y)
+        c = jnp.where(better, costs[best], c)
+        damping = jnp.clip(jnp.where(better, levels[best], damping * _DAMPING_RISE), 1e-12, 1e12)
+        return (y, c, damping), None
+
+    init = (y0, jnp.asarray(jnp.inf, y0.dtype), jnp.asarray(1e-2, y0.dtype))
+    (y, c, _), _ = jax.lax.scan(step, init, None, length=steps)
+    return y, c
+
+
 @eqx.filter_jit
 def _residual_and_jacobian(y, problem: Problem):
     # a nested program: optimistix traces the linearisation more than once per solve, and
