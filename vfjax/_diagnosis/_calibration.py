@@ -197,10 +197,23 @@ class _NullSource:
         offsets of deviation ``timing_sd`` (s) and amplitude factors of ``amplitude_sd``;
         of ``model`` (with the source's jitter terms last) at ``shift`` (s) in the sampling
         of ``problem`` (a `Problem` of the same recording) if given."""
-        simulator = self.simulator if problem is None else _Simulator(problem)
+        return self.draw_with(*self.jitter(n, timing_sd, amplitude_sd), model, shift, problem)
+
+    def jitter(self, n: int, timing_sd: float, amplitude_sd: float):
+        """``n`` rows of timing offsets (s) and amplitude factors, one per slot, of
+        deviations ``timing_sd`` and ``amplitude_sd``."""
         shape = (n, self.n_slots)
         offsets = timing_sd * self.rng.standard_normal(shape)
         factors = np.clip(1.0 + amplitude_sd * self.rng.standard_normal(shape), 0.05, None)
+        return offsets, factors
+
+    def draw_with(
+        self, offsets, factors, model=None, shift=None, problem=None, noise_sd=None
+    ) -> np.ndarray:
+        """`draw` with the given rows of timing offsets (s) and amplitude factors (and white
+        noise of deviation ``noise_sd`` where given, else the source's)."""
+        simulator = self.simulator if problem is None else _Simulator(problem)
+        n = offsets.shape[0]
         base = self.model if model is None else model
         shift = self.shift if shift is None else jnp.asarray(shift)
         # simulated _DRAW_BATCH at a time: one compiled program for every count
@@ -222,7 +235,8 @@ class _NullSource:
             ]
         )[:n]
         frames = self.recording.n_frames
-        noisy = clean + self.noise_sd * self.rng.standard_normal(clean.shape)
+        noise_sd = self.noise_sd if noise_sd is None else noise_sd
+        noisy = clean + noise_sd * self.rng.standard_normal(clean.shape)
         noisy = np.maximum(noisy, 0.0)
         if self.integral:
             noisy = np.round(noisy)

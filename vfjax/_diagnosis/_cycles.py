@@ -127,7 +127,7 @@ def _per_cycle_fit(problem, y0, basis, period, steps: int):
     """The fit of ``problem`` (its model with a `TimingJitter` and an `AmplitudeJitter` last,
     one slot each per cycle) continued from its point ``y0`` with each cycle's timing offset
     (in periods) and amplitude factor (less 1) appended to the point, along the rows of
-    ``basis``: (point, its sum of squares (px²))."""
+    ``basis``: (point, its sum of squares (px²), its residual, fitted minus measured)."""
     k = y0.shape[0]
     n = (basis.shape[1] - k) // 2
 
@@ -143,7 +143,8 @@ def _per_cycle_fit(problem, y0, basis, period, steps: int):
         g = jnp.maximum(jnp.where(sim.complete, sim.area, 0.0), 0.0)
         return problem.counted * (g - problem.measured)
 
-    return levenberg_marquardt(residual, jnp.concatenate([y0, jnp.zeros(2 * n)]), basis, steps)
+    y, sse = levenberg_marquardt(residual, jnp.concatenate([y0, jnp.zeros(2 * n)]), basis, steps)
+    return y, sse, residual(y)
 
 
 def _spread(values, trend: bool) -> float:
@@ -158,15 +159,19 @@ def _spread(values, trend: bool) -> float:
     return float(np.sum(residual**2) / dof), dof
 
 
-def _size(observed: float, noise: float, dof: int, level: float):
-    """A spread (standard deviation) less the estimation noise, from the ``observed``
-    variance and the ``noise`` variance that white noise alone gives (method of moments),
-    and its interval at ``level`` (chi-square on ``dof``)."""
+def _size(observed: float, added, dof: int, level: float):
+    """A spread (standard deviation) less what the fit adds to it, from the ``observed``
+    variance and the variances ``added`` on simulated recordings (method of moments), and
+    its interval at ``level``: chi-square on ``dof`` for the observed variance, Student's t
+    for the mean of the added ones (each end takes the other's far end)."""
+    added = np.asarray(added, float)
+    mean = float(np.mean(added))
     tail = (1.0 - level) / 2.0
-    low = observed * dof / stats.chi2.ppf(1.0 - tail, dof) - noise
-    high = observed * dof / stats.chi2.ppf(tail, dof) - noise
+    spread = stats.t.ppf(1.0 - tail, added.size - 1) * np.std(added, ddof=1) / math.sqrt(added.size)
+    low = observed * dof / stats.chi2.ppf(1.0 - tail, dof) - (mean + spread)
+    high = observed * dof / stats.chi2.ppf(tail, dof) - (mean - spread)
     return (
-        math.sqrt(max(observed - noise, 0.0)),
+        math.sqrt(max(observed - mean, 0.0)),
         (math.sqrt(max(low, 0.0)), math.sqrt(max(high, 0.0))),
     )
 
@@ -174,12 +179,33 @@ def _size(observed: float, noise: float, dof: int, level: float):
 def _per_cycle_spreads(problem, y0, basis, period, inside, k, n):
     """The per-cycle fit of ``problem`` (`_per_cycle_fit`): the variances of its timing
     offsets (s, about a line) and amplitude factors (about their mean) over the cycles
-    ``inside`` the recording, with their degrees of freedom, the offsets and factors, and
-    the fit's sum of squares (px²)."""
-    y, sse = _per_cycle_fit(problem, y0, basis, period, _STEPS)
+    ``inside`` the recording, with their degrees of freedom, the offsets and factors, the
+    fit's sum of squares (px²) and its residual."""
+    y, sse, r = _per_cycle_fit(problem, y0, basis, period, _STEPS)
     y = np.asarray(y)[k:]
     offsets, factors = y[:n][inside] * period, 1.0 + y[n:][inside]
-    return _spread(offsets, True), _spread(factors, False), offsets, factors, float(sse)
+    return (
+        _spread(offsets, True),
+        _spread(factors, False),
+        offsets,
+        factors,
+        float(sse),
+        np.asarray(r),
+    )
+
+
+def _noise_sd(measured, residual, n_fitted: int, integral: bool) -> float:
+    """The white noise of a recording, from the residual of a fit that leaves nothing else
+    (the per-cycle fit): its variance over the frames where the measured or the fitted GAW
+    is open (a clipped closed phase shows no noise), on those frames less the ``n_fitted``
+    parameters; less the rounding's 1/12 where the recording is ``integral`` (its null
+    recordings are rounded again)."""
+    fitted = measured + residual
+    open_ = (measured > 0) | (fitted > 0)
+    variance = float(np.sum(residual[open_] ** 2)) / max(int(open_.sum()) - n_fitted, 1)
+    if integral:
+        variance -= 1.0 / 12.0
+    return math.sqrt(max(variance, 0.0))
 
 
 def variability_test(
@@ -189,19 +215,16 @@ def variability_test(
     `vfjax.diagnosis` null source: the fitted model with a `TimingJitter` and an
     `AmplitudeJitter` last, its sampling, shift and noise level); ``problem``: the fit's
     problem with that model, ``y0`` the fit's point there. The per-cycle fit is repeated on
-    ``noise_replicates`` white-noise recordings, whose spreads are what noise alone adds.
+    ``noise_replicates`` white-noise recordings, whose spreads are what noise adds, then,
+    where a spread is found, on as many with the spreads so found: what the fit adds to
+    the spreads it is given, subtracted from the recording's.
     None where the recording holds fewer than four whole cycles."""
     rec = source.recording
     frames = rec.n_frames
     fitted = source.clean[:frames]
     observed = cycle_deviation(rec.area, fitted, rec.fps)
-    # the null: the model's GAW with white noise only, each about the model's GAW
-    nulls = source.draw(replicates, 0.0, 0.0)
-    null = np.array([cycle_deviation(a[:frames], fitted, rec.fps) for a in nulls])
     if not np.isfinite(observed):
         return None
-    exceed = int(np.sum(~np.isfinite(null) | (null >= observed)))
-    p_value = (1 + exceed) / (1 + replicates)
     # the cycles: slots of one period; those whose support meets the frames are fitted,
     # those whose whole support (a period either side of the middle) lies inside the
     # recording are counted (a slot at an edge is seen in part, and trades with the
@@ -222,20 +245,58 @@ def variability_test(
     basis = np.zeros((rows.size, k + 2 * n))
     basis[np.arange(rows.size), rows] = 1.0
     y0, basis = jnp.asarray(y0), jnp.asarray(basis)
-    (t_var, dof_t), (a_var, dof_a), offsets, factors, sse = _per_cycle_spreads(
+    (t_var, dof_t), (a_var, dof_a), offsets, factors, sse, residual = _per_cycle_spreads(
         problem, y0, basis, period, inside, k, n
     )
-    # what white noise alone adds to the spreads: the same fit on recordings of the model
-    noise_t, noise_a = [], []
-    for area in nulls[:noise_replicates]:
-        null_problem = dataclasses.replace(problem, measured=jnp.asarray(area))
-        (t_null, _), (a_null, _), *_ = _per_cycle_spreads(
-            null_problem, y0, basis, period, inside, k, n
-        )
-        noise_t.append(t_null)
-        noise_a.append(a_null)
-    timing_sd, timing_interval = _size(t_var, float(np.mean(noise_t)), dof_t, level)
-    amplitude_sd, amplitude_interval = _size(a_var, float(np.mean(noise_a)), dof_a, level)
+    # the null: the model's GAW with white noise only, each about the model's GAW; the
+    # noise is what the per-cycle fit leaves (a noise estimate from the first fit's misfit
+    # would hold the variability, and one from the high frequencies of rounded areas is
+    # biased, enough to flag a recording of the model itself)
+    noise = _noise_sd(
+        np.asarray(problem.measured)[:frames], residual[:frames], rows.size, source.integral
+    )
+    still = (np.zeros((replicates, n)), np.ones((replicates, n)))
+    nulls = source.draw_with(*still, noise_sd=noise)
+    null = np.array([cycle_deviation(a[:frames], fitted, rec.fps) for a in nulls])
+    exceed = int(np.sum(~np.isfinite(null) | (null >= observed)))
+    p_value = (1 + exceed) / (1 + replicates)
+    # what the fit adds to the spreads, by simulation: the same fit on recordings of the
+    # model with white noise only (the noise's share), then, where a spread is found, on
+    # recordings with the spreads so found, each compared with the spreads drawn over its
+    # counted cycles (each spread's leak into the other too: a timing spread shows in part
+    # as an amplitude spread, and back)
+    observed_var = np.array([t_var, a_var])
+    sizes = np.zeros(2)
+    drawn = np.zeros((noise_replicates, 2))
+    areas = nulls[:noise_replicates]
+    for second in (False, True):
+        if second:
+            if not np.any(sizes > 0):
+                break
+            shifts, gains = source.jitter(noise_replicates, *sizes)
+            areas = source.draw_with(shifts, gains, noise_sd=noise)
+            drawn = np.array(
+                [
+                    (_spread(o[inside], True)[0], _spread(g[inside], False)[0])
+                    for o, g in zip(shifts, gains)
+                ]
+            )
+        found = []
+        for area in areas:
+            (t_sim, _), (a_sim, _), *_ = _per_cycle_spreads(
+                dataclasses.replace(problem, measured=jnp.asarray(area)),
+                y0,
+                basis,
+                period,
+                inside,
+                k,
+                n,
+            )
+            found.append((t_sim, a_sim))
+        added = np.asarray(found) - drawn
+        sizes = np.sqrt(np.maximum(observed_var - added.mean(axis=0), 0.0))
+    timing_sd, timing_interval = _size(t_var, added[:, 0], dof_t, level)
+    amplitude_sd, amplitude_interval = _size(a_var, added[:, 1], dof_a, level)
     scale = float(np.sum(np.square(rec.area)))
     return CycleVariability(
         p_value=float(p_value),
