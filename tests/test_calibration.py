@@ -151,7 +151,8 @@ def test_hidden_cycle_to_cycle_variability_is_found_and_sized(n3):
     every white-noise recording of the fit, and the per-cycle fit recovers both spreads
     within 20 % of those drawn over the cycles it counts (the offsets' about a line: a
     trend is a change of period). A recording of the fitted model
-    with white noise only is not flagged, and its intervals hold zero."""
+    with white noise only is not flagged, and no spread a tenth of the hidden ones is found
+    there."""
     f0 = vfjax.descriptors.fundamental_frequency(_area(n3, 400, 0.02), FPS)
     period = 1.0 / f0
     timing = vfjax.TimingJitter.random(1e-4, period, duration=0.3, seed=13)
@@ -184,7 +185,9 @@ def test_hidden_cycle_to_cycle_variability_is_found_and_sized(n3):
     jittered = _problem(source.model, plain, fit, measured)
     clear = variability_test(source, jittered, _fit_point(jittered, fit), 99, 0.95)
     assert clear.p_value > 0.05 and not clear.needed(0.05)
-    assert clear.timing_interval[0] == 0.0 and clear.amplitude_interval[0] == 0.0
+    # no spread of a size that matters (a tenth of the hidden ones) is found
+    assert clear.timing_interval[0] < 0.1 * truth_t and clear.timing_sd < 0.1 * truth_t
+    assert clear.amplitude_interval[0] < 0.1 * truth_a and clear.amplitude_sd < 0.1 * truth_a
 
 
 def _problem(model, rec, fit, period):

@@ -123,11 +123,14 @@ class CycleVariability:
 
 
 @eqx.filter_jit
-def _per_cycle_fit(problem, y0, basis, period, steps: int):
+def _per_cycle_fit(problem, gaw, y0, basis, period, steps: int):
     """The fit of ``problem`` (its model with a `TimingJitter` and an `AmplitudeJitter` last,
-    one slot each per cycle) continued from its point ``y0`` with each cycle's timing offset
-    (in periods) and amplitude factor (less 1) appended to the point, along the rows of
-    ``basis``: (point, its sum of squares (px²), its residual, fitted minus measured)."""
+    one slot each per cycle) to ``gaw`` (padded like the problem's), continued from its
+    point ``y0`` with each cycle's timing offset (in periods) and amplitude factor (less 1)
+    appended to the point, along the rows of ``basis`` (zero rows are held): (point, its
+    sum of squares (px²), its residual, fitted minus measured). One program for every
+    recording of a length bucket and slot count (vmapped over recordings, it runs slower on
+    CPU than one after the other)."""
     k = y0.shape[0]
     n = (basis.shape[1] - k) // 2
 
@@ -141,9 +144,10 @@ def _per_cycle_fit(problem, y0, basis, period, steps: int):
         )
         sim = problem.simulate(model, problem.shift(z))
         g = jnp.maximum(jnp.where(sim.complete, sim.area, 0.0), 0.0)
-        return problem.counted * (g - problem.measured)
+        return problem.counted * (g - gaw)
 
-    y, sse = levenberg_marquardt(residual, jnp.concatenate([y0, jnp.zeros(2 * n)]), basis, steps)
+    start = jnp.concatenate([y0, jnp.zeros(2 * n)])
+    y, sse = levenberg_marquardt(residual, start, basis, steps)
     return y, sse, residual(y)
 
 
@@ -176,22 +180,31 @@ def _size(observed: float, added, dof: int, level: float):
     )
 
 
-def _per_cycle_spreads(problem, y0, basis, period, inside, k, n):
-    """The per-cycle fit of ``problem`` (`_per_cycle_fit`): the variances of its timing
-    offsets (s, about a line) and amplitude factors (about their mean) over the cycles
-    ``inside`` the recording, with their degrees of freedom, the offsets and factors, the
-    fit's sum of squares (px²) and its residual."""
-    y, sse, r = _per_cycle_fit(problem, y0, basis, period, _STEPS)
-    y = np.asarray(y)[k:]
-    offsets, factors = y[:n][inside] * period, 1.0 + y[n:][inside]
-    return (
-        _spread(offsets, True),
-        _spread(factors, False),
-        offsets,
-        factors,
-        float(sse),
-        np.asarray(r),
-    )
+def _per_cycle_spreads(problem, measured, y0, basis, period, inside, k, n):
+    """The per-cycle fits of ``problem`` to the rows of ``measured`` (`_per_cycle_fit`):
+    per row, the variances of its timing offsets (s, about a line) and amplitude factors
+    (about their mean) over the cycles ``inside`` the recording, with their degrees of
+    freedom, the offsets and factors, the fit's sum of squares (px²) and its residual."""
+    out = []
+    for gaw in measured:
+        y, sse, r = (
+            np.asarray(a)
+            for a in _per_cycle_fit(
+                problem, jnp.asarray(gaw), y0, basis, jnp.asarray(period), _STEPS
+            )
+        )
+        offsets, factors = y[k:][:n][inside] * period, 1.0 + y[k + n :][inside]
+        out.append(
+            (
+                _spread(offsets, True),
+                _spread(factors, False),
+                offsets,
+                factors,
+                float(sse),
+                r,
+            )
+        )
+    return out
 
 
 def _noise_sd(measured, residual, n_fitted: int, integral: bool) -> float:
@@ -241,19 +254,25 @@ def variability_test(
     fitted_slots = (middles > t0 - period) & (middles < t1 + period)
     k = int(y0.shape[0])
     free = np.r_[np.asarray(problem.free), np.ones(k - len(problem.names))] > 0
-    rows = np.flatnonzero(np.r_[free, fitted_slots, fitted_slots])
-    basis = np.zeros((rows.size, k + 2 * n))
-    basis[np.arange(rows.size), rows] = 1.0
+    fitted_rows = np.r_[free, fitted_slots, fitted_slots]
+    # one row per fitted coordinate, padded with zero rows to a multiple of 16: recordings
+    # of a length bucket share their programs (each row costs a jvp per step)
+    index = np.flatnonzero(fitted_rows)
+    basis = np.zeros((16 * math.ceil(index.size / 16), fitted_rows.size))
+    basis[np.arange(index.size), index] = 1.0
     y0, basis = jnp.asarray(y0), jnp.asarray(basis)
-    (t_var, dof_t), (a_var, dof_a), offsets, factors, sse, residual = _per_cycle_spreads(
-        problem, y0, basis, period, inside, k, n
-    )
+    ((t_var, dof_t), (a_var, dof_a), offsets, factors, sse, residual) = _per_cycle_spreads(
+        problem, np.asarray(problem.measured)[None], y0, basis, period, inside, k, n
+    )[0]
     # the null: the model's GAW with white noise only, each about the model's GAW; the
     # noise is what the per-cycle fit leaves (a noise estimate from the first fit's misfit
     # would hold the variability, and one from the high frequencies of rounded areas is
     # biased, enough to flag a recording of the model itself)
     noise = _noise_sd(
-        np.asarray(problem.measured)[:frames], residual[:frames], rows.size, source.integral
+        np.asarray(problem.measured)[:frames],
+        residual[:frames],
+        int(fitted_rows.sum()),
+        source.integral,
     )
     still = (np.zeros((replicates, n)), np.ones((replicates, n)))
     nulls = source.draw_with(*still, noise_sd=noise)
@@ -281,18 +300,8 @@ def variability_test(
                     for o, g in zip(shifts, gains)
                 ]
             )
-        found = []
-        for area in areas:
-            (t_sim, _), (a_sim, _), *_ = _per_cycle_spreads(
-                dataclasses.replace(problem, measured=jnp.asarray(area)),
-                y0,
-                basis,
-                period,
-                inside,
-                k,
-                n,
-            )
-            found.append((t_sim, a_sim))
+        fits = _per_cycle_spreads(problem, areas, y0, basis, period, inside, k, n)
+        found = [(t_sim, a_sim) for (t_sim, _), (a_sim, _), *_ in fits]
         added = np.asarray(found) - drawn
         sizes = np.sqrt(np.maximum(observed_var - added.mean(axis=0), 0.0))
     timing_sd, timing_interval = _size(t_var, added[:, 0], dof_t, level)
