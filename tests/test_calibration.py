@@ -2,6 +2,7 @@
 limits, the refit statistic's solver against scipy, and the calibrated p-values on the
 shared independent recordings (the no-effect case, slow: `test_diagnosis`)."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -60,6 +61,33 @@ def test_constant_factors_are_a_gain_a_time_shift_and_a_stiffer_spring(n3):
     k = float(n3.params()["K"])
     stiffer = _area(n3.with_term(vfjax.StiffnessJitter(np.full(40, 1.1), period)))
     np.testing.assert_allclose(stiffer, _area(n3.set(K=1.1 * k)), rtol=0, atol=1e-6)
+
+
+def test_per_cycle_offsets_and_factors_derivatives_match_central_differences(n3):
+    """The per-cycle fit's derivatives: the GAW's forward-mode derivative along one timing
+    offset and one amplitude factor (of a slot within the frames) against central
+    differences, within 2 % over the frames where the GAW moves."""
+    period = 1 / 200.0
+    offsets = 5e-5 * np.random.default_rng(0).standard_normal(40)
+    factors = 1.0 + 0.03 * np.random.default_rng(1).standard_normal(40)
+    model = n3.with_term(vfjax.TimingJitter(offsets, period))
+    model = model.with_term(vfjax.AmplitudeJitter(factors, period))
+
+    def area(o, f):
+        m = eqx.tree_at(lambda m: (m.terms[-2].offsets, m.terms[-1].factors), model, (o, f))
+        return vfjax.simulate(m, FPS, 161, t_start=0.03).area
+
+    o, f = jnp.asarray(offsets), jnp.asarray(factors)
+    slot = 8  # middle at 42.5 ms, inside the frames (30-70 ms)
+    for tangent, h in ((0, 2e-6), (1, 1e-4)):
+        do = jnp.zeros(40).at[slot].set(1.0 if tangent == 0 else 0.0)
+        df = jnp.zeros(40).at[slot].set(1.0 if tangent == 1 else 0.0)
+        _, jvp = jax.jvp(area, (o, f), (do, df))
+        central = (area(o + h * do, f + h * df) - area(o - h * do, f - h * df)) / (2 * h)
+        jvp, central = np.asarray(jvp), np.asarray(central)
+        moving = np.abs(central) > 0.05 * np.max(np.abs(central))
+        assert moving.sum() > 10
+        np.testing.assert_allclose(jvp[moving], central[moving], rtol=0.02)
 
 
 def test_random_factors_are_seeded_and_validated():
