@@ -56,19 +56,19 @@ by their centred statistic (`Calibrated.ranking`); by score p-value without refi
 effect is needed, `Diagnosis.verdict` says so in words, with where the model fails
 (`vfjax.compare`).
 
-3. **Cycle-to-cycle variability** (`CycleVariability`, `Diagnosis.variability`). The
-   candidates' null recordings carry the recording's own variability; variability itself is
-   tested against null recordings of the fitted model with white noise only (at the level
-   the per-cycle fit below leaves). The statistic is the misfit that changes from cycle to
-   cycle (`cycle_deviation`: the residual cut at the fitted GAW's cycles, less the misfit
-   every cycle shares, which an effect may explain), its p-value a rank among the null
-   recordings'. Its size: one timing offset
-   (s) and one amplitude factor per cycle (`TimingJitter`, `AmplitudeJitter`, slots of one
-   period), fitted to the recording together with the fitted parameters; the spread of the
-   offsets about a line (a trend is a change of period) and of the factors about their mean,
-   less what the same fit adds to the spreads of simulated recordings (white noise only,
-   then the spreads found), with chi-square intervals on the cycles' count. The recording
-   varies beyond its noise when the p-value is at most alpha and an interval excludes zero.
+3. **Cycle-to-cycle variability** (`CycleVariability`, `Diagnosis.variability`), where no
+   candidate is significant. The candidates' null recordings carry the recording's own
+   variability; variability itself is tested against null recordings of the fitted model
+   with white noise only (at the level the per-cycle fit below leaves). The statistic is the
+   misfit that changes from cycle to cycle (`cycle_deviation`: the residual cut at the
+   fitted GAW's cycles, less the misfit every cycle shares, which an effect may explain),
+   its p-value a rank among the null recordings'. Its size: one timing offset (s) and one
+   amplitude factor per cycle (`TimingJitter`, `AmplitudeJitter`, slots of one period),
+   fitted to the recording together with the fitted parameters; the spread of the offsets
+   about a line (a trend is a change of period) and of the factors about their mean, less
+   what the same fit adds to the spreads of simulated recordings (white noise only, then the
+   spreads found), with chi-square intervals on the cycles' count. The recording varies
+   beyond its noise when the p-value is at most alpha and an interval excludes zero.
 
 - ``_options``: `Criteria` and `RefitPlan`;
 - ``_calibration``: `Calibration`, the null recordings and the calibrated statistic;

@@ -785,8 +785,8 @@ class Calibrated:
             alpha, else None.
         interval_level: the intervals' confidence level (``Calibration.interval``).
         cycles: the test of cycle-to-cycle variability against the fitted model with white
-            noise only, and its size (`vfjax.diagnosis.CycleVariability`; None with fewer
-            than four cycles in the recording).
+            noise only, and its size (`vfjax.diagnosis.CycleVariability`), where no
+            candidate is significant; None otherwise or with fewer than four whole cycles.
     """
 
     candidates: tuple
@@ -855,8 +855,8 @@ def calibrate(
     parametric bootstrap: ``calibration.interval_replicates`` recordings simulated from the
     model with the effect at its fitted values, with the same variability and noise, each
     refitted from those values; the estimate plus or minus the normal quantile times their
-    spread). Last, the test of cycle-to-cycle variability (`variability_test`), against
-    null recordings with white noise only.
+    spread). Last, where no candidate is significant, the test of cycle-to-cycle
+    variability (`variability_test`), against null recordings with white noise only.
 
     ``estimates``: per candidate, a fit of the model with it (`FitResult` or None, such as
     a search's refit on the recording): a start of the statistic's refits for a candidate
@@ -959,18 +959,22 @@ def calibrate(
             values[k], intervals[k] = _interval(
                 jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands
             )
-    # cycle-to-cycle variability (its null recordings drawn last: the candidates' are the
-    # seed's first draws)
-    jittered, _, _ = prepare(
-        source.model, recording, tuple(result.params), result.sampling, period, None
-    )
-    cycles = variability_test(
-        source,
-        jittered,
-        _fit_point(jittered, result),
-        calibration.replicates,
-        calibration.interval,
-    )
+    # cycle-to-cycle variability, where no candidate is significant (a missing effect's
+    # misfit trades with the per-cycle factors: the extended fit's diagnosis tests it); its
+    # null recordings drawn last, so the candidates' are the seed's first draws
+    cycles = None
+    if not np.any(family <= alpha):
+        jittered, _, _ = prepare(
+            source.model, recording, tuple(result.params), result.sampling, period, None
+        )
+        cycles = variability_test(
+            source,
+            jittered,
+            _fit_point(jittered, result),
+            calibration.replicates,
+            calibration.interval,
+            alpha,
+        )
     return dataclasses.replace(
         tested, values=tuple(values), intervals=tuple(intervals), cycles=cycles
     )

@@ -222,7 +222,13 @@ def _noise_sd(measured, residual, n_fitted: int, integral: bool) -> float:
 
 
 def variability_test(
-    source, problem, y0, replicates: int, level: float, noise_replicates: int = 4
+    source,
+    problem,
+    y0,
+    replicates: int,
+    level: float,
+    alpha: float = 0.01,
+    noise_replicates: int = 4,
 ) -> CycleVariability | None:
     """The calibrated test of cycle-to-cycle variability of ``source``'s recording (a
     `vfjax.diagnosis` null source: the fitted model with a `TimingJitter` and an
@@ -230,8 +236,9 @@ def variability_test(
     problem with that model, ``y0`` the fit's point there. The per-cycle fit is repeated on
     ``noise_replicates`` white-noise recordings, whose spreads are what noise adds, then,
     where a spread is found, on as many with the spreads so found: what the fit adds to
-    the spreads it is given, subtracted from the recording's.
-    None where the recording holds fewer than four whole cycles."""
+    the spreads it is given, subtracted from the recording's. Where the p-value exceeds
+    ``alpha`` no spread is found (0, with the observed spreads' upper limits): the
+    simulations are skipped. None where the recording holds fewer than four whole cycles."""
     rec = source.recording
     frames = rec.n_frames
     fitted = source.clean[:frames]
@@ -288,7 +295,8 @@ def variability_test(
     sizes = np.zeros(2)
     drawn = np.zeros((noise_replicates, 2))
     areas = nulls[:noise_replicates]
-    for second in (False, True):
+    added = np.zeros((2, 2))  # nothing beyond the noise: no subtraction
+    for second in (False, True) if p_value <= alpha else ():
         if second:
             if not np.any(sizes > 0):
                 break
@@ -306,6 +314,10 @@ def variability_test(
         sizes = np.sqrt(np.maximum(observed_var - added.mean(axis=0), 0.0))
     timing_sd, timing_interval = _size(t_var, added[:, 0], dof_t, level)
     amplitude_sd, amplitude_interval = _size(a_var, added[:, 1], dof_a, level)
+    if p_value > alpha:
+        timing_sd = amplitude_sd = 0.0
+        timing_interval = (0.0, timing_interval[1])
+        amplitude_interval = (0.0, amplitude_interval[1])
     scale = float(np.sum(np.square(rec.area)))
     return CycleVariability(
         p_value=float(p_value),

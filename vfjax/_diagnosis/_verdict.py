@@ -108,8 +108,8 @@ class Diagnosis:
     @property
     def variability(self):
         """The test of cycle-to-cycle variability against white noise alone, and its size
-        (`vfjax.diagnosis.CycleVariability`); None without refits or with fewer than four
-        cycles."""
+        (`vfjax.diagnosis.CycleVariability`), run where no candidate is significant; None
+        otherwise, without refits or with fewer than four whole cycles."""
         return None if self.calibrated is None else self.calibrated.cycles
 
     @property
@@ -235,9 +235,9 @@ def verdict_text(d: Diagnosis) -> str:
 
 
 def _cycles_text(d: Diagnosis) -> str:
-    """The sentence on cycle-to-cycle variability, where the recording shows it (said only
-    where no effect is needed: a missing effect's misfit, such as a gap's, trades with the
-    per-cycle factors, so the extended fit's diagnosis is the one to read it from)."""
+    """The sentence on cycle-to-cycle variability, where the recording shows it (tested only
+    where no candidate is significant: a missing effect's misfit, such as a gap's, trades
+    with the per-cycle factors, so the extended fit's diagnosis is the one to read)."""
     v = d.variability
     if v is None or not v.needed(d.criteria.alpha):
         return ""
