@@ -173,6 +173,7 @@ def _drawn_sd(values, slot, t_first, t_last, trend):
     return float(np.sqrt(np.sum((v - centre) ** 2) / (v.size - (2 if trend else 1))))
 
 
+@pytest.mark.slow  # a minute; benchmarks/variability_recovery.py measures 24 recordings
 def test_hidden_cycle_to_cycle_variability_is_found_and_sized(n3):
     """An N3 recording (401 frames, 1 px noise) with timing offsets of 0.1 ms and amplitude
     factors of 5 % per cycle, fitted without them: its cycle-to-cycle misfit lies beyond
