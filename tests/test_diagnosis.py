@@ -27,6 +27,7 @@ from vfjax import (
 )
 from vfjax._diagnosis._candidates import offered
 from vfjax._diagnosis._score import _estimate, _hac, sensitivities
+from vfjax._diagnosis._verdict import verdict_text
 from vfjax.datasets import demo_recording
 from vfjax.diagnosis import Candidate, default_candidates
 from vfjax.workflow import Investigation, Round
@@ -234,6 +235,12 @@ def test_shared_gap_case(shared_dir):
     alone = Investigation(rec.name, [Round(result, d, None, None)]).outcome(rec)
     assert alone.status == "unexplained" and alone.evidence == {}
     assert any(f.startswith("closed phase") for f in alone.failures), alone.failures
+    # a candidate whose refit ends above the refit without any effect (after a longer
+    # warm-up) is named as not assessed, not read as evidence against it
+    assert "Not assessed" not in d.verdict
+    worse = dataclasses.replace(d.refits["MucosalDelay"], nmse=0.04, fall=-1.0)
+    flagged = verdict_text(dataclasses.replace(d, refits={**d.refits, "MucosalDelay": worse}))
+    assert "Not assessed: the refits with MucosalDelay (NMSE 4.000% against 2.000%)" in flagged
 
 
 @pytest.mark.slow

@@ -200,6 +200,7 @@ def verdict_text(d: Diagnosis) -> str:
                     "diagnose the extended fit for a second round"
                 )
         lines.append(text)
+        lines += _unassessed_text(d)
         return ". ".join(lines) + "."
     significant = [n for n in d.ranking if evidence(d.scores[n], d.refits.get(n)) <= d.level]
     if significant and d.refits:
@@ -225,6 +226,7 @@ def verdict_text(d: Diagnosis) -> str:
             f"recording's noise and cycle-to-cycle variability (smallest p = {smallest:.2g}; "
             f"NMSE {before:.3%}, {floor})"
         )
+    lines += _unassessed_text(d)
     cycles = _cycles_text(d)
     if cycles:
         lines.append(cycles)
@@ -232,6 +234,29 @@ def verdict_text(d: Diagnosis) -> str:
     if failures:
         lines.append("Where the model fails: " + "; ".join(failures[:3]))
     return ". ".join(lines) + "."
+
+
+#: How far (a share of its NMSE) a candidate's refit may end above the refit without any
+#: effect before the verdict names it as not assessed: the two can come from different
+#: warm-ups, whose optima differ by rounding where the fitted model fits both alike.
+_ABOVE = 0.01
+
+
+def _unassessed_text(d: Diagnosis) -> list[str]:
+    """The sentence on candidates whose calibrated refit ends above the best model without
+    any effect (after a longer warm-up, where the fitted model itself fits worse): a search
+    that did not reach the control, which is no evidence either way."""
+    above = [f for f in d.refits.values() if f.fall < -_ABOVE]
+    if not above:
+        return []
+    listed = ", ".join(
+        f"{f.effect} (NMSE {f.nmse:.3%} against {f.nmse / (1.0 - f.fall):.3%})" for f in above
+    )
+    return [
+        f"Not assessed: the refits with {listed} end above the refit without any effect: "
+        "after the longer warm-up they need, the fitted model itself fits worse, so their "
+        "p-values say nothing against them"
+    ]
 
 
 def _cycles_text(d: Diagnosis) -> str:
