@@ -422,3 +422,24 @@ def test_a_weak_mucosal_delay_is_flagged():
     d = _diagnosed(rec)
     assert d.best == "MucosalDelay", d.verdict
     assert d.refits["MucosalDelay"].values["tau"] == pytest.approx(0.25e-3, rel=0.2)
+
+
+def test_an_effect_is_identified_only_by_a_measured_interval_that_excludes_its_off_value():
+    """Each tested parameter's interval must be finite, of positive width (bootstrap refits
+    that all stay at the estimate measure nothing) and exclude the off-value."""
+    refit = vfjax.diagnosis.EffectRefit(
+        effect="GlottalGap",
+        result=None,
+        nmse=0.001,
+        fall=0.5,
+        values={"a_gap": 0.004},
+        p_value=0.005,
+        f_p_value=1e-6,
+        marginal_p_value=0.005,
+        interval={"a_gap": (0.003, 0.005)},
+        off_values={"a_gap": 0.0},
+    )
+    assert refit.identified
+    for interval in ((-0.001, 0.005), (0.004, 0.004), (math.nan, math.nan)):
+        assert not dataclasses.replace(refit, interval={"a_gap": interval}).identified, interval
+    assert not dataclasses.replace(refit, interval=None).identified

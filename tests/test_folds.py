@@ -13,6 +13,7 @@ import vfjax
 from vfjax import LeftRightAsymmetry
 from vfjax.asymmetry import asymmetry_indices, fold_areas
 from vfjax.datasets import demo_recording
+from vfjax.diagnosis import AsymmetryTest
 
 FPS = 4000.0
 
@@ -194,3 +195,16 @@ def test_the_asymmetry_test_finds_a_hidden_asymmetry_and_clears_symmetric_folds(
     assert not cleared.needed and cleared.p_value > 0.05, cleared.words
     with pytest.raises(ValueError, match="two folds already"):
         vfjax.diagnosis.asymmetry_test(found.refit, rec)
+
+
+def test_asymmetry_is_needed_only_with_a_measured_interval_that_excludes_one():
+    """A significant fall is not enough: Q's interval must exclude 1, and an interval that
+    is not measured (bootstrap refits that all stay at the estimate: zero width; too few
+    finite refits: NaN) excludes nothing."""
+    base = dict(symmetric_nmse=0.2, nmse=0.1, fall=0.5, p_value=0.005, replicates=111)
+    base |= dict(Q=0.9, alpha=0.01, refit=None, search_failure=False)
+    assert AsymmetryTest(interval=(0.85, 0.95), **base).needed
+    for interval in ((0.85, 1.05), (1.0003, 1.0003), (float("nan"), float("nan"))):
+        test = AsymmetryTest(interval=interval, **base)
+        assert not test.needed and "detectable but not identifiable" in test.words, interval
+    assert not AsymmetryTest(interval=(0.85, 0.95), **base | {"p_value": 0.05}).needed

@@ -22,7 +22,8 @@ folds each make half of its GAW:
   with the same noise, each refitted from it; the interval is the estimate plus or minus
   the normal quantile times their spread (as the catalogue's effects get).
 
-Asymmetry is needed when p <= alpha and the interval excludes Q = 1.
+Asymmetry is needed when p <= alpha and Q's interval is measured (finite, of positive
+width) and excludes Q = 1.
 """
 
 import dataclasses
@@ -79,10 +80,16 @@ class AsymmetryTest:
     search_failure: bool
 
     @property
-    def needed(self) -> bool:
-        """Significant, with an interval of Q that excludes 1."""
+    def identified(self) -> bool:
+        """Whether Q's interval is measured (finite, of positive width: bootstrap refits
+        that all stay where they start measure nothing) and excludes 1."""
         low, high = self.interval
-        return self.p_value <= self.alpha and not low <= 1.0 <= high and not self.search_failure
+        return bool(np.isfinite(low) and np.isfinite(high) and low < high and not low <= 1 <= high)
+
+    @property
+    def needed(self) -> bool:
+        """Significant, with an interval of Q that is measured and excludes 1."""
+        return self.p_value <= self.alpha and self.identified and not self.search_failure
 
     @property
     def words(self) -> str:

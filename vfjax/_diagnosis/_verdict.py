@@ -1,6 +1,7 @@
 """What a diagnosis found, the statistics of a refit's error fall, and the verdict in words."""
 
 import dataclasses
+import math
 
 from .._fit import FitResult
 from ..compare import Comparison
@@ -45,12 +46,13 @@ class EffectRefit:
 
     @property
     def identified(self) -> bool:
-        """Whether the interval of every tested parameter excludes its off-value."""
+        """Whether the interval of every tested parameter is measured (finite, of positive
+        width) and excludes its off-value."""
         if self.interval is None:
             return False
         return all(
-            not (self.interval[n][0] <= v <= self.interval[n][1])
-            for n, v in self.off_values.items()
+            math.isfinite(lo) and math.isfinite(hi) and lo < hi and not lo <= v <= hi
+            for (lo, hi), v in ((self.interval[n], v) for n, v in self.off_values.items())
         )
 
 
