@@ -10,7 +10,7 @@ vfjax.report.write_report(study, recording, "out/")
 import dataclasses
 from collections.abc import Sequence
 
-from .._fit import FIRST_FIT_RESTARTS, FitResult, Swarm, fit_recording
+from .._fit import FIRST_FIT_RESTARTS, PRESSURE_RANGE, FitResult, Swarm, fit_recording
 from .._fit._engine import DEFAULT_SWARM
 from ..compare import NO_CLEAR_FAILURE, compare
 from ..model import VocalFoldModel
@@ -106,6 +106,14 @@ class Investigation:
             words = (
                 f"{what} (NMSE {first:.3%} -> {final:.3%}, noise floor {floor:.3%}); the "
                 f"model still misses: {'; '.join(failures[:3])}"
+            )
+        pressure = self.final.params.get("P_s")
+        if pressure is not None and not PRESSURE_RANGE[0] <= float(pressure) <= PRESSURE_RANGE[1]:
+            words += (
+                f"; the final fit's subglottal pressure P_s = {float(pressure):.3g} dyne/cm² lies "
+                f"outside the {PRESSURE_RANGE[0]:.0f}-{PRESSURE_RANGE[1]:.0f} dyne/cm² of "
+                "phonation (vfjax.PRESSURE_RANGE; the refits' polish does not bound it): read "
+                "its parameters with care"
             )
         cycles = self.rounds[-1].diagnosis.variability
         if cycles is not None and cycles.needed(self.rounds[-1].diagnosis.criteria.alpha):
