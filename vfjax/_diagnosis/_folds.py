@@ -42,6 +42,7 @@ from ..recording import Recording
 from ..terms.base import AbstractFoldPair
 from ..terms.folds import LeftRightAsymmetry
 from ._calibration import DEFAULT_CALIBRATION, Calibration
+from ._verdict import excludes
 
 #: The search box of Q in the two folds' refits.
 Q_BOUNDS = (0.5, 2.0)
@@ -86,8 +87,7 @@ class AsymmetryTest:
     def identified(self) -> bool:
         """Whether Q's interval is measured (finite, of positive width: bootstrap refits
         that all stay where they start measure nothing) and excludes 1."""
-        low, high = self.interval
-        return bool(np.isfinite(low) and np.isfinite(high) and low < high and not low <= 1 <= high)
+        return excludes(self.interval, 1.0)
 
     @property
     def needed(self) -> bool:
@@ -183,15 +183,16 @@ def _statistic(model, recordings, params, calibration, done) -> list[float]:
     )
     falls = []
     for p, a, t, rec in zip(plain, again, two, recordings):
-        base = min(_symmetric_nmse(p, rec), _symmetric_nmse(a, rec))
+        base = min(_symmetric_nmse(f.fitted_gaw(), rec.folds) for f in (p, a))
         falls.append(1.0 - min(t.nmse, base) / base)
     return falls
 
 
-def _symmetric_nmse(result: FitResult, recording: Recording) -> float:
-    """The per-fold NMSE of a symmetric fit, each fold half of its GAW."""
-    g = np.asarray(result.fitted_gaw())
-    return per_fold_nmse(0.5 * g, 0.5 * g, recording.folds)
+def _symmetric_nmse(gaw, folds) -> float:
+    """The per-fold NMSE of a symmetric model's GAW ``gaw`` against the measured ``folds``
+    (frames, 2), each fold half of the GAW."""
+    half = 0.5 * np.asarray(gaw)
+    return per_fold_nmse(half, half, folds)
 
 
 def asymmetry_test(
@@ -232,7 +233,7 @@ def asymmetry_test(
     params = tuple(result.params)
     folds = recording.folds
     total = np.asarray(result.fitted_gaw())
-    symmetric = per_fold_nmse(0.5 * total, 0.5 * total, folds)
+    symmetric = _symmetric_nmse(total, folds)
     two_params = params + ("Q",)
     (refit,) = _refits(
         [result.model.with_term(LeftRightAsymmetry(Q=1.0))],
@@ -252,20 +253,21 @@ def asymmetry_test(
     # the per-fold areas, then the two folds refitted from it; a fall from the symmetric fit
     # itself would count what refitting the shared parameters gains, which the null
     # recordings' truth does not offer
-    observed: list[float] = []
+    observed = None
     falls: list[float] = []
     while len(falls) < calibration.replicates:
-        n = min(calibration.batch - (not observed), calibration.replicates - len(falls))
-        recs = [] if observed else [recording]
+        first = observed is None
+        n = min(calibration.batch - first, calibration.replicates - len(falls))
+        recs = [recording] if first else []
         recs += [
             _noisy(recording, total, 0.5 * total, sd_total, sd_left, rng, f"null {len(falls) + i}")
             for i in range(n)
         ]
-        falls_here = _statistic(result.model, recs, params, calibration, len(falls))
-        if not observed:
-            observed, falls_here = falls_here[:1], falls_here[1:]
-        falls += falls_here
-        beyond = sum(f >= observed[0] for f in falls)
+        here = _statistic(result.model, recs, params, calibration, len(falls))
+        if first:
+            observed, here = here[0], here[1:]
+        falls += here
+        beyond = sum(f >= observed for f in falls)
         if (1 + beyond) / (1 + calibration.replicates) > alpha:
             break  # no more null recordings can bring p to alpha
     p_value = (1 + beyond) / (1 + len(falls))
@@ -292,7 +294,7 @@ def asymmetry_test(
     return AsymmetryTest(
         symmetric_nmse=symmetric,
         nmse=refit.nmse,
-        fall=observed[0],
+        fall=observed,
         p_value=p_value,
         replicates=len(falls),
         Q=q_hat,

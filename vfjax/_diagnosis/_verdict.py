@@ -50,10 +50,16 @@ class EffectRefit:
         width) and excludes its off-value."""
         if self.interval is None:
             return False
-        return all(
-            math.isfinite(lo) and math.isfinite(hi) and lo < hi and not lo <= v <= hi
-            for (lo, hi), v in ((self.interval[n], v) for n, v in self.off_values.items())
-        )
+        return all(excludes(self.interval[n], v) for n, v in self.off_values.items())
+
+
+def excludes(interval, value: float) -> bool:
+    """Whether ``interval`` (low, high) is measured (finite, of positive width: bootstrap
+    refits that all stay where they start measure nothing) and excludes ``value``."""
+    low, high = interval
+    return bool(
+        math.isfinite(low) and math.isfinite(high) and low < high and not low <= value <= high
+    )
 
 
 @dataclasses.dataclass(frozen=True)
