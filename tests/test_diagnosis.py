@@ -233,10 +233,10 @@ def test_shared_gap_case(shared_dir):
     assert removed > 0.9 and outcome.evidence == {"GlottalGap": refit.p_value}
     assert "GlottalGap (calibrated p = " in outcome.words
     assert "P_s" not in outcome.words  # the fit's pressure lies within PRESSURE_RANGE
-    # a final fit whose pressure left the plausible range is named in the outcome's words
-    strained = dataclasses.replace(refit.result, params={**refit.result.params, "P_s": 3.8e5})
+    # a final fit whose pressure reached the edge of the plausible range is named
+    strained = dataclasses.replace(refit.result, params={**refit.result.params, "P_s": 3e4})
     words = Investigation(rec.name, [Round(result, d, "GlottalGap", strained)]).outcome(rec).words
-    assert "P_s = 3.8e+05 dyne/cm² lies outside the 1000-30000 dyne/cm² of phonation" in words
+    assert "P_s = 3e+04 dyne/cm² reaches the edge of the 1000-30000 dyne/cm² of phonation" in words
     alone = Investigation(rec.name, [Round(result, d, None, None)]).outcome(rec)
     assert alone.status == "unexplained" and alone.evidence == {}
     assert any(f.startswith("closed phase") for f in alone.failures), alone.failures

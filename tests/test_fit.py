@@ -401,3 +401,20 @@ def test_a_first_fit_searches_the_pressure_and_the_hold_from_zero():
     stated = Recording(rec.area, rec.fps, metadata={"subglottal_pressure_dyne_per_cm2": 6750.0})
     assert float(vfjax.initial_model(stated).params()["P_s"]) == 6750.0
     assert "P_s" not in vfjax.first_fit_parameters(stated, vfjax.initial_model(stated))
+
+
+def test_no_fit_leaves_the_plausible_pressure_range():
+    """P_s stays within `PRESSURE_RANGE` (widened only by the start and the given bounds):
+    a recording made at 60 000 dyne/cm² is fitted at the range's edge, flagged as at its
+    bound, and reached when the bounds widen the range."""
+    truth = vfjax.preset("N1", P_s_dyne_per_cm2=60000.0)
+    rec = _recording(truth, t_start=0.0307)
+    start = _start(truth).set(P_s=25000.0)
+    params = ("S", "K", "C_f", "P_s")
+    held = fit(start, rec, params, progress=False)
+    assert held.params["P_s"] == pytest.approx(vfjax.PRESSURE_RANGE[1], rel=1e-12)
+    assert held.bounds["P_s"] == pytest.approx([12500.0, 30000.0])  # 0.5-2x, within the range
+    assert held.status == "at_bound" and held.nmse > 1e-4
+    wide = fit(start, rec, params, bounds={"P_s": (1000.0, 1e5)}, progress=False)
+    assert wide.params["P_s"] == pytest.approx(60000.0, rel=0.02)
+    assert wide.nmse < 1e-5

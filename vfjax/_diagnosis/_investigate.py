@@ -108,12 +108,12 @@ class Investigation:
                 f"model still misses: {'; '.join(failures[:3])}"
             )
         pressure = self.final.params.get("P_s")
-        if pressure is not None and not PRESSURE_RANGE[0] <= float(pressure) <= PRESSURE_RANGE[1]:
+        low, high = PRESSURE_RANGE
+        if pressure is not None and not low * (1 + 1e-6) < float(pressure) < high * (1 - 1e-6):
             words += (
-                f"; the final fit's subglottal pressure P_s = {float(pressure):.3g} dyne/cm² lies "
-                f"outside the {PRESSURE_RANGE[0]:.0f}-{PRESSURE_RANGE[1]:.0f} dyne/cm² of "
-                "phonation (vfjax.PRESSURE_RANGE; the refits' polish does not bound it): read "
-                "its parameters with care"
+                f"; the final fit's subglottal pressure P_s = {float(pressure):.3g} dyne/cm² "
+                f"reaches the edge of the {low:.0f}-{high:.0f} dyne/cm² of phonation "
+                "(vfjax.PRESSURE_RANGE, which no fit leaves): read its parameters with care"
             )
         cycles = self.rounds[-1].diagnosis.variability
         if cycles is not None and cycles.needed(self.rounds[-1].diagnosis.criteria.alpha):

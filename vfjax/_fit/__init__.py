@@ -22,14 +22,20 @@ at zero area before it is compared: a camera sees no negative area.
 from ._engine import DEFAULT_PARAMS, fit, fit_many
 from ._first import (
     FIRST_FIT_RESTARTS,
-    PRESSURE_RANGE,
     first_fit_bounds,
     first_fit_parameters,
     fit_recording,
     fit_recordings,
 )
 from ._options import Polish, Swarm
-from ._problem import DEFAULT_FACTORS, LINEAR, WARMUP, default_warmup, search_range
+from ._problem import (
+    DEFAULT_FACTORS,
+    LINEAR,
+    PRESSURE_RANGE,
+    WARMUP,
+    default_warmup,
+    search_range,
+)
 from ._result import FIT_STATUSES, FitResult, fitted_area
 
 __all__ = [

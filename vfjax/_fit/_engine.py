@@ -35,7 +35,14 @@ from ..recording import Recording
 from ..terms.base import AbstractFoldPair
 from ._options import Polish, Swarm
 from ._polish import polish as _polish_one
-from ._problem import bounds_in_units, default_warmup, fit_sampling, prepare, program_size
+from ._problem import (
+    PLAUSIBLE,
+    bounds_in_units,
+    default_warmup,
+    fit_sampling,
+    prepare,
+    program_size,
+)
 from ._result import FitResult, fit_status
 from ._swarm import run_chunk, scatter, unvisited
 
@@ -518,7 +525,11 @@ def fit_many(
         fitted_names = tuple(n for n in params if n not in hold[i])
         values = fitted.params()
         box = {n: b for n, b in bounds_in_units(problem, lo, hi).items() if n in fitted_names}
-        floors = dict(zip(problem.names, np.asarray(problem.floor)))
+        # a value at its physical floor (a gap of 0) is not at a bound; P_s at the edge of
+        # its plausible range is
+        floors = {
+            n: f for n, f in zip(problem.names, np.asarray(problem.floor)) if n not in PLAUSIBLE
+        }
         status, of_mean = fit_status(rec.area, float(cost[j]), values, box, floors)
         units = fitted.parameter_units()
         per_run = swarm.size * (1 + swarm.iterations) + 1

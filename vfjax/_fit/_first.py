@@ -18,11 +18,9 @@ from ..model import VocalFoldModel
 from ..presets import PRESSURE_KEY, initial_model
 from ..recording import Recording
 from ._engine import fit, fit_many
+from ._problem import PRESSURE_RANGE
 from ._result import FitResult
 
-#: The subglottal pressures (dyne/cm²) a first fit searches when the recording states none:
-#: about 1 to 30 cm H2O, from below the phonation threshold to loud voice.
-PRESSURE_RANGE = (1000.0, 30000.0)
 #: The first fit's box for the stiffness and the damping factor, as factors of the
 #: starting model's values (K matched to the recording's f0).
 REGIME_FACTORS = {"K": (0.1, 10.0), "C_f": (0.01, 100.0)}

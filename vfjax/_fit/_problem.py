@@ -40,6 +40,13 @@ DEFAULT_FACTORS = {
     "P_s": (0.5, 2.0),
     "S": (0.1, 10.0),
 }
+#: The subglottal pressures (dyne/cm²) of phonation, about 1 to 30 cm H2O, from below the
+#: phonation threshold to loud voice: a first fit searches them when the recording states
+#: none, and no fit (swarm or polish) moves P_s outside them, or outside its starting value
+#: and the fit's bounds where those lie beyond.
+PRESSURE_RANGE = (1000.0, 30000.0)
+#: Physical limits of a fitted parameter that its search coordinate alone does not keep.
+PLAUSIBLE = {"P_s": PRESSURE_RANGE}
 #: Parameters searched in linear coordinates (their off-value is 0, or they may be negative):
 #: name -> (default low, default high, scale), in the parameter's unit. Any other parameter
 #: whose starting value is 0 is searched linearly too, with the entry here or (0, 1, 0.1).
@@ -91,7 +98,8 @@ class Problem(eqx.Module):
     counted: jax.Array  # (frames bucket,) 1 for a frame of the recording, 0 for padding
     reference: jax.Array  # (n_params,) starting values of the non-S fitted parameters
     scale: jax.Array  # (n_params,) coordinate scale of the linear ones (unused for log ones)
-    floor: jax.Array  # (n_params,) physical lower limit of the linear ones (-inf: none)
+    floor: jax.Array  # (n_params,) physical lower limit (-inf: none)
+    ceiling: jax.Array  # (n_params,) physical upper limit (inf: none)
     free: jax.Array  # (n_params,) 1 for a fitted parameter, 0 for a held one
     s_reference: jax.Array  # () starting (or fixed) S
     period: jax.Array  # () T0 estimate (s)
@@ -113,14 +121,18 @@ class Problem(eqx.Module):
 
     def model_at(self, z, log_s=None):
         """The model at coordinates ``z`` (physical parameters first; S at ``log_s``)."""
-        # linear coordinates of parameters that cannot be negative (a gap, a delay) are held
-        # at zero from below, so that an unconstrained polish step stays physical; a held
-        # parameter's coordinate is multiplied by 0: it stays at its reference value
+        # each value is clipped to its physical limits (a gap or a delay cannot be negative,
+        # P_s stays within `PLAUSIBLE`), so that an unconstrained polish step stays physical;
+        # a held parameter's coordinate is multiplied by 0: it stays at its reference value
         z = z[: len(self.names)] * self.free
         values = {
-            n: jnp.maximum(self.reference[i] + self.scale[i] * z[i], self.floor[i])
-            if lin
-            else self.reference[i] * jnp.exp(z[i])
+            n: jnp.clip(
+                self.reference[i] + self.scale[i] * z[i]
+                if lin
+                else self.reference[i] * jnp.exp(z[i]),
+                self.floor[i],
+                self.ceiling[i],
+            )
             for i, (n, lin) in enumerate(zip(self.names, self.linear))
         }
         s = self.s_reference if log_s is None else self.s_reference * jnp.exp(log_s)
@@ -275,9 +287,10 @@ def _bounds(names, model, bounds):
             hi.append((b - ref) / scale)
         elif bounds and n in bounds:
             a, b = bounds[n]
-            if not (0 < a < ref < b):
+            if not (0 < a <= ref <= b and a < b):
                 raise ValueError(
-                    f"bounds for {n} must satisfy 0 < low < start ({ref}) < high, got {bounds[n]}"
+                    f"bounds for {n} must satisfy 0 < low <= start ({ref}) <= high and "
+                    f"low < high, got {bounds[n]}"
                 )
             lo.append(math.log(a / ref))
             hi.append(math.log(b / ref))
@@ -288,16 +301,39 @@ def _bounds(names, model, bounds):
     return np.array(lo), np.array(hi)
 
 
+def _limits(names, model, bounds) -> tuple[np.ndarray, np.ndarray]:
+    """Physical limits (floor, ceiling) of each fitted parameter: 0 from below for a linearly
+    searched one whose range starts at 0 or above, `PLAUSIBLE`'s interval (widened to hold
+    the starting value and the fit's bounds) where it has one, else none."""
+    params = model.params()
+    floor, ceiling = [], []
+    for n in names:
+        low, high = -np.inf, np.inf
+        if (search_range(model, n) or (-1.0,))[0] >= 0:
+            low = 0.0
+        if n in PLAUSIBLE:
+            ref = float(params[n])
+            given = (bounds or {}).get(n, (ref, ref))
+            low = min(PLAUSIBLE[n][0], ref, float(given[0]))
+            high = max(PLAUSIBLE[n][1], ref, float(given[1]))
+        floor.append(low)
+        ceiling.append(high)
+    return np.array(floor), np.array(ceiling)
+
+
 def bounds_in_units(problem: Problem, lower, upper) -> dict:
     """The search box {name: [low, high]} in the parameters' units (S included if fitted),
-    of one unbatched problem."""
+    of one unbatched problem: the coordinates' box within the parameters' physical limits."""
     out = {}
-    for i, (n, a, b) in enumerate(zip(problem.names, np.asarray(lower), np.asarray(upper))):
+    rows = zip(problem.names, np.asarray(lower), np.asarray(upper))
+    for i, (n, a, b) in enumerate(rows):
         ref, scale = float(problem.reference[i]), float(problem.scale[i])
         if problem.linear[i]:
-            out[n] = [ref + scale * float(a), ref + scale * float(b)]
+            low, high = ref + scale * float(a), ref + scale * float(b)
         else:
-            out[n] = [ref * math.exp(float(a)), ref * math.exp(float(b))]
+            low, high = ref * math.exp(float(a)), ref * math.exp(float(b))
+        floor, ceiling = float(problem.floor[i]), float(problem.ceiling[i])
+        out[n] = [min(max(low, floor), ceiling), max(min(high, ceiling), floor)]
     if problem.fit_s:
         out["S"] = [float(v) for v in np.asarray(problem.s_bounds)]
     return out
@@ -352,6 +388,7 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
             f"only fitted parameters other than S can be held, got {held} for params {params}"
         )
     lo, hi = _bounds(names, model, bounds)
+    floor, ceiling = _limits(names, model, bounds)
     free = np.array([n not in held for n in names], dtype=float)
     lo, hi = lo * free, hi * free  # a held parameter's search interval is [0, 0]
     s_ref = float(model.params()["S"])
@@ -375,9 +412,8 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
         counted=jnp.asarray(np.arange(n_out) < recording.n_frames, dtype=float),
         reference=jnp.asarray([float(model.params()[n]) for n in names]),
         scale=jnp.asarray([(search_range(model, n) or (0.0, 1.0, 0.1))[2] for n in names]),
-        floor=jnp.asarray(
-            [0.0 if (search_range(model, n) or (-1.0,))[0] >= 0 else -np.inf for n in names]
-        ),
+        floor=jnp.asarray(floor),
+        ceiling=jnp.asarray(ceiling),
         free=jnp.asarray(free),
         s_reference=jnp.asarray(s_ref),
         period=jnp.asarray(period),
