@@ -418,3 +418,32 @@ def test_no_fit_leaves_the_plausible_pressure_range():
     wide = fit(start, rec, params, bounds={"P_s": (1000.0, 1e5)}, progress=False)
     assert wide.params["P_s"] == pytest.approx(60000.0, rel=0.02)
     assert wide.nmse < 1e-5
+
+
+def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
+    """`settling`: N1 closes every cycle (the hold resets its state), so after 0.2 s its fit
+    leaves the same error; without flow separation its oscillation decays and never closes
+    (MODEL_SPEC), so a fit of its first 50 ms matches a transient that 0.2 s later is gone."""
+    _, rec, result = n1_fit
+    noisy = Recording(
+        np.clip(rec.area + np.random.default_rng(1).normal(0, 2.0, rec.n_frames), 0, None),
+        rec.fps,
+        name="n1_noisy",
+    )
+    sustained = vfjax.settling(result, noisy)
+    assert sustained.settled and sustained.warmup == vfjax.SETTLING_WARMUP
+    # S and the shift found afresh on the noisy recording: at most the fit's own error
+    unchanged = float(vfjax.nmse(noisy.area, result.fitted_gaw()))
+    assert 0.98 * unchanged <= sustained.fit_nmse <= unchanged
+    assert sustained.nmse == pytest.approx(sustained.fit_nmse, rel=0.05)
+    # the fit is the truth, so its residual is the noise alone (clipped where closed)
+    assert sustained.noise_nmse == pytest.approx(unchanged, rel=0.3)
+    decaying = vfjax.preset("N1").without(vfjax.terms.paper.FlowSeparation)
+    start_up = _recording(decaying, t_start=0.0213, name="no_flow_separation")
+    fitted = fit(decaying, start_up, ("S",), progress=False)
+    transient = vfjax.settling(fitted, start_up)
+    assert fitted.nmse < 1e-4 and not transient.settled
+    assert transient.nmse > 100 * fitted.nmse
+    assert "not settled" in transient.words() and "warmup=0.2" in transient.words()
+    with pytest.raises(ValueError, match="longer than the fit's"):
+        vfjax.settling(fitted, start_up, warmup_s=0.01)

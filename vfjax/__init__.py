@@ -39,8 +39,10 @@ from ._fit import (  # noqa: E402
     FIRST_FIT_RESTARTS,
     FIT_STATUSES,
     PRESSURE_RANGE,
+    SETTLING_WARMUP,
     FitResult,
     Polish,
+    Settling,
     Swarm,
     default_warmup,
     first_fit_bounds,
@@ -50,6 +52,7 @@ from ._fit import (  # noqa: E402
     fit_recording,
     fit_recordings,
     search_range,
+    settling,
 )
 from ._sampling import Sampling, length_bucket  # noqa: E402
 from ._validate import Constraint, as_parameter  # noqa: E402
@@ -172,6 +175,9 @@ __all__ = [
     "FIRST_FIT_RESTARTS",
     "FIT_STATUSES",
     "PRESSURE_RANGE",
+    "SETTLING_WARMUP",
+    "Settling",
+    "settling",
     "Polish",
     "Sampling",
     "StiffnessJitter",

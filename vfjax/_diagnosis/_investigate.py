@@ -10,7 +10,15 @@ vfjax.report.write_report(study, recording, "out/")
 import dataclasses
 from collections.abc import Sequence
 
-from .._fit import FIRST_FIT_RESTARTS, PRESSURE_RANGE, FitResult, Swarm, fit_recording
+from .._fit import (
+    FIRST_FIT_RESTARTS,
+    PRESSURE_RANGE,
+    FitResult,
+    Settling,
+    Swarm,
+    fit_recording,
+    settling,
+)
 from .._fit._engine import DEFAULT_SWARM
 from ..compare import NO_CLEAR_FAILURE, compare
 from ..model import VocalFoldModel
@@ -121,6 +129,9 @@ class Investigation:
                 f"; it varies from cycle to cycle beyond its noise (calibrated p = "
                 f"{cycles.p_value:.2g}): {cycles.words()}"
             )
+        settled = settling(self.final, recording)
+        if not settled.settled:
+            words += f"; {settled.words()}"
         return Outcome(
             recording_name=self.recording_name,
             status=status,
@@ -131,6 +142,7 @@ class Investigation:
             evidence=evidence,
             failures=failures,
             words=words,
+            settling=settled,
         )
 
 
@@ -158,6 +170,9 @@ class Outcome:
         evidence: each added effect's calibrated family-wise p-value.
         failures: where the final fit still misses, in words (`Comparison.failures`).
         words: the conclusion in a sentence.
+        settling: the final fit after a longer warm-up (`vfjax.settling`); the words say
+            when the fit is not settled (it matches the recording with the model's
+            start-up, and its parameters describe a transient).
     """
 
     recording_name: str
@@ -169,6 +184,7 @@ class Outcome:
     evidence: dict
     failures: list
     words: str
+    settling: Settling | None = None
 
 
 def extend_from(

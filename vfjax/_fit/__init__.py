@@ -12,6 +12,8 @@ time_shift``, where the time shift is a fitted, differentiable parameter in [0, 
 - ``_options``: `Swarm` and `Polish`;
 - ``_result``: `FitResult` and its status;
 - ``_engine``: `fit_many` and `fit`, which run every fit as a batch of compiled programs;
+- ``_settling``: `settling`, whether a fitted oscillation is sustained (the fitted model
+  after a longer warm-up);
 - ``_first``: `fit_recording`, a recording's first fit (free pressure, a box that reaches the
   model's regimes, restarts), and `fit_recordings`, many first fits as one batch.
 
@@ -37,6 +39,7 @@ from ._problem import (
     search_range,
 )
 from ._result import FIT_STATUSES, FitResult, fitted_area
+from ._settling import SETTLING_WARMUP, Settling, settling
 
 __all__ = [
     "DEFAULT_FACTORS",
@@ -45,6 +48,8 @@ __all__ = [
     "FIT_STATUSES",
     "LINEAR",
     "PRESSURE_RANGE",
+    "SETTLING_WARMUP",
+    "Settling",
     "WARMUP",
     "FitResult",
     "Polish",
@@ -55,6 +60,7 @@ __all__ = [
     "first_fit_parameters",
     "fit_many",
     "fit_recording",
+    "settling",
     "fit_recordings",
     "fitted_area",
     "search_range",

@@ -1,0 +1,120 @@
+"""Whether a fit describes a sustained oscillation: the fitted model after a longer warm-up.
+
+A fit simulates the model from rest at contact and samples the recording's frames after a
+warm-up (`default_warmup`). A recording of sustained phonation is an oscillation that no
+longer depends on how it started. Where the fitted model's oscillation still grows or decays
+at the first frame (a glottis that never closes: no closure hold resets the state each
+cycle), the fit can match the recording with the start-up itself, and its parameters then
+describe a transient that the larynx never shows. `settling` simulates the fitted model
+after a longer warm-up and says whether its error changes by more than the recording's
+noise explains.
+"""
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ..descriptors import noise_level
+from ..recording import Recording
+from ._polish import levenberg_marquardt
+from ._problem import fit_sampling, prepare
+from ._result import FitResult
+
+#: The warm-up (s) after which `settling` simulates a fitted model by default: about 25
+#: cycles of a low male voice.
+SETTLING_WARMUP = 0.2
+
+
+@dataclasses.dataclass(frozen=True)
+class Settling:
+    """The fitted model's error after its fit's warm-up and after a longer one.
+
+    Both errors are the fitted model's NMSE with S and the time shift found afresh (the best
+    of a grid of shifts half a frame apart, then polished with S), so that a longer warm-up,
+    which moves the phase of the cycle at the first frame, is compared like with like.
+
+    Attributes:
+        fit_warmup: the fit's warm-up (s).
+        warmup: the longer warm-up (s).
+        fit_nmse: NMSE after the fit's warm-up.
+        nmse: NMSE after the longer warm-up.
+        noise_nmse: the NMSE that the recording's white noise alone leaves
+            (`vfjax.descriptors.noise_level` of the fit's residual).
+    """
+
+    fit_warmup: float
+    warmup: float
+    fit_nmse: float
+    nmse: float
+    noise_nmse: float
+
+    @property
+    def settled(self) -> bool:
+        """Whether the longer warm-up changes the error by no more than the noise leaves."""
+        return bool(self.nmse <= self.fit_nmse + self.noise_nmse)
+
+    def words(self) -> str:
+        """The check in a sentence."""
+        numbers = (
+            f"NMSE {self.fit_nmse:.3%} after the fit's {self.fit_warmup * 1e3:.0f} ms warm-up, "
+            f"{self.nmse:.3%} after {self.warmup * 1e3:.0f} ms (noise floor "
+            f"{self.noise_nmse:.3%})"
+        )
+        if self.settled:
+            return f"the fitted oscillation is settled ({numbers})"
+        return (
+            f"the fit is not settled ({numbers}): it matches the recording with the model's "
+            "start-up from rest, not with a sustained oscillation, so its parameters describe "
+            f"a transient; refit with warmup={self.warmup:g}"
+        )
+
+
+#: Levenberg-Marquardt steps over the time shift and S from the grid's best shift.
+_STEPS = 10
+
+
+@eqx.filter_jit
+def _aligned_nmse(problem):
+    # the grid's best shift, then the shift (and S) polished: half a frame of misalignment
+    # on a GAW with sharp closures costs more error than a settled model's drift
+    y0, cost = problem.start(jnp.zeros(len(problem.names)))
+    basis = jnp.eye(y0.size)[len(problem.names) :]
+    return jnp.minimum(levenberg_marquardt(problem.residual, y0, basis, _STEPS)[1], cost)
+
+
+def settling(result: FitResult, recording: Recording, warmup_s: float | None = None) -> Settling:
+    """Simulate ``result``'s fitted model after a longer warm-up and compare its error.
+
+    Arguments:
+        result: a fit of ``recording`` (`vfjax.fit`, `vfjax.fit_recording`).
+        recording: the recording it fitted.
+        warmup_s: the longer warm-up (s); default `SETTLING_WARMUP`, or twice the fit's
+            warm-up if that is already longer.
+
+    Returns:
+        `Settling`: both errors, the noise floor, and ``settled``.
+    """
+    if not isinstance(result, FitResult) or not isinstance(recording, Recording):
+        raise TypeError("settling needs a vfjax.FitResult and the vfjax.Recording it fitted")
+    if recording.n_frames != result.sampling.n_frames or recording.fps != result.sampling.fps:
+        raise ValueError(
+            f"{recording.name}: {recording.n_frames} frames at {recording.fps:g} fps, but the "
+            f"fit sampled {result.sampling.n_frames} at {result.sampling.fps:g}"
+        )
+    own = float(result.sampling.warmup)
+    longer = max(SETTLING_WARMUP, 2.0 * own) if warmup_s is None else float(warmup_s)
+    if not (math.isfinite(longer) and longer > own):
+        raise ValueError(f"warmup_s must be longer than the fit's {own:g} s, got {warmup_s}")
+    # S re-projected for a GAW in pixels; otherwise a held parameter (a fit needs one name)
+    params, held = (("S",), ()) if recording.unit == "px" else (("K",), ("K",))
+    errors = []
+    for w in (own, longer):
+        sampling, period = fit_sampling(recording, w, result.sampling.substeps)
+        problem, _, _ = prepare(result.model, recording, params, sampling, period, None, held)
+        errors.append(float(_aligned_nmse(problem)))
+    noise = noise_level(recording.area, result.fitted_gaw(recording))
+    floor = min(recording.n_frames * noise**2 / float(np.sum(recording.area**2)), errors[0])
+    return Settling(own, longer, errors[0], errors[1], floor)
