@@ -253,6 +253,13 @@ def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(
     assert code in (0, 1) and "Traceback" not in err, err
     status = json.loads((tmp_path / "c" / "FN003_fit.json").read_text())["status"]
     assert (status == "successful") == (code == 0)
+    # --warmup reaches the fit (its sampling says so); the same compiled programs serve it
+    code, err = _main(
+        "fit", contour, "--fps", "8000", "--out", "w", "--warmup", "0.05", *quick, **here
+    )
+    assert code in (0, 1) and "Traceback" not in err, err
+    saved = json.loads((tmp_path / "w" / "FN003_fit.json").read_text())
+    assert saved["sampling"]["warmup"] == 0.05
     # 120 frames: the contour file's length bucket, so its compiled programs serve again
     rows = [f"{i},{i / FPS:.8f},{a * 1e10 + 1:g}" for i, a in enumerate(_gaw(120))]
     code, err = _main("fit", _table(tmp_path, rows=rows), *quick, **here)

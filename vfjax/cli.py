@@ -144,7 +144,9 @@ def _run(args, out, plt) -> int:
     return 0
 
 
-def _fit_and_report(recording, model, out, params, iterations, key_seed, restarts=None):
+def _fit_and_report(
+    recording, model, out, params, iterations, key_seed, restarts=None, warmup=None
+):
     import jax
     import matplotlib.pyplot as plt
 
@@ -159,6 +161,7 @@ def _fit_and_report(recording, model, out, params, iterations, key_seed, restart
         restarts=FIRST_FIT_RESTARTS if restarts is None else restarts,
         swarm=Swarm(iterations=iterations),
         key=jax.random.key(key_seed),
+        **({} if warmup is None else {"warmup": warmup}),
     )
     result.to_json(out / f"{recording.name}_fit.json")
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 3.4), gridspec_kw={"width_ratios": [2.2, 1]})
@@ -261,7 +264,7 @@ def cmd_diagnose(args) -> int:
 
     matplotlib.use("Agg")
     from ._diagnosis import Calibration, Criteria, investigate
-    from ._fit import Swarm
+    from ._fit import Swarm, fit_recording
     from .io import check_output_folder, staged_output
     from .presets import initial_model
     from .report import write_report
@@ -269,16 +272,24 @@ def cmd_diagnose(args) -> int:
     check_output_folder(args.out, args.force)
     rec = _load_input(args)
     model = initial_model(rec, template=args.start)
+    params = None if args.params is None else tuple(args.params)
+    swarm = Swarm(iterations=args.iterations)
     with staged_output(args.out, args.force) as out:
+        first = None
+        if args.warmup is not None:  # the first fit at the given warm-up; the refits keep it
+            first = fit_recording(
+                rec, model, params, restarts=args.restarts, swarm=swarm, warmup=args.warmup
+            )
         study = investigate(
             rec,
             model,
-            None if args.params is None else tuple(args.params),
+            params,
+            first=first,
             rounds=args.rounds,
             restarts=args.restarts,
             criteria=Criteria(alpha=args.alpha),
             calibration=Calibration(replicates=args.replicates, seed=args.seed),
-            swarm=Swarm(iterations=args.iterations),
+            swarm=swarm,
             candidates=diagnosis_candidates(args.also),
             progress=True,
         )
@@ -333,6 +344,7 @@ def cmd_fit(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    from ._fit import settling
     from .io import check_output_folder, staged_output
     from .presets import initial_model
 
@@ -341,7 +353,9 @@ def cmd_fit(args) -> int:
     model = initial_model(rec, template=args.start)
     with staged_output(args.out, args.force) as out:
         params = None if args.params is None else tuple(args.params)
-        result = _fit_and_report(rec, model, out, params, args.iterations, args.seed, args.restarts)
+        result = _fit_and_report(
+            rec, model, out, params, args.iterations, args.seed, args.restarts, args.warmup
+        )
     units = result.units
     print(
         f"{rec.name}: NMSE {result.nmse:.3e} ({result.status}); "
@@ -349,6 +363,9 @@ def cmd_fit(args) -> int:
     )
     out = pathlib.Path(args.out)
     print(f"wrote {out / (rec.name + '_fit.json')} and {out / (rec.name + '_fit.png')}")
+    check = settling(result, rec)
+    if not check.settled:
+        print(f"vfjax: warning: {rec.name}: {check.words()}", file=sys.stderr)
     return _report_failure(result, f"{rec.name}: the fit")
 
 
@@ -538,6 +555,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="preset to start from (default: N1 for male or unknown, N3 for female)",
     )
     f.add_argument("--iterations", type=int, default=60, help="PSO iterations")
+    f.add_argument(
+        "--warmup",
+        type=float,
+        help="simulated time (s) before the first frame (default: 0.02, longer where a term "
+        "needs it); lengthen it when the fit is reported not settled",
+    )
     f.add_argument("--seed", type=int, default=0, help="PRNG seed")
     f.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     f.set_defaults(func=cmd_fit)
@@ -555,6 +578,12 @@ def build_parser() -> argparse.ArgumentParser:
         "sidecar states subglottal_pressure_dyne_per_cm2)",
     )
     dg.add_argument("--start", choices=["N1", "N2", "N3", "N4"], help="preset to start from")
+    dg.add_argument(
+        "--warmup",
+        type=float,
+        help="simulated time (s) before the first frame (default: 0.02, longer where a term "
+        "needs it); lengthen it when the fit is reported not settled",
+    )
     _diagnosis_arguments(dg)
     dg.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     dg.set_defaults(func=cmd_diagnose)

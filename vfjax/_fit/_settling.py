@@ -68,7 +68,8 @@ class Settling:
         return (
             f"the fit is not settled ({numbers}): it matches the recording with the model's "
             "start-up from rest, not with a sustained oscillation, so its parameters describe "
-            f"a transient; refit with warmup={self.warmup:g}"
+            f"a transient; fit it again with a warm-up of {self.warmup:g} s (warmup="
+            f"{self.warmup:g}; vfjax fit --warmup {self.warmup:g})"
         )
 
 
@@ -77,12 +78,18 @@ _STEPS = 10
 
 
 @eqx.filter_jit
-def _aligned_nmse(problem):
-    # the grid's best shift, then the shift (and S) polished: half a frame of misalignment
-    # on a GAW with sharp closures costs more error than a settled model's drift
+def _aligned_nmse(problem, shift):
+    # the shift (and S) polished from the grid's best shift and from ``shift`` (s; the
+    # fit's own at its warm-up, else NaN): half a frame of misalignment on a GAW with sharp
+    # closures costs more error than a settled model's drift
     y0, cost = problem.start(jnp.zeros(len(problem.names)))
     basis = jnp.eye(y0.size)[len(problem.names) :]
-    return jnp.minimum(levenberg_marquardt(problem.residual, y0, basis, _STEPS)[1], cost)
+    n = len(problem.names)
+    own = jnp.where(jnp.isnan(shift), y0, y0.at[n].set(shift / problem.period))
+    if problem.fit_s:
+        own = jnp.where(jnp.isnan(shift), own, own.at[-1].set(0.0))  # the fit's own S
+    costs = [levenberg_marquardt(problem.residual, y, basis, _STEPS)[1] for y in (y0, own)]
+    return jnp.minimum(jnp.minimum(*costs), cost)
 
 
 def settling(result: FitResult, recording: Recording, warmup_s: float | None = None) -> Settling:
@@ -111,10 +118,10 @@ def settling(result: FitResult, recording: Recording, warmup_s: float | None = N
     # S re-projected for a GAW in pixels; otherwise a held parameter (a fit needs one name)
     params, held = (("S",), ()) if recording.unit == "px" else (("K",), ("K",))
     errors = []
-    for w in (own, longer):
+    for w, shift in ((own, result.time_shift), (longer, math.nan)):
         sampling, period = fit_sampling(recording, w, result.sampling.substeps)
         problem, _, _ = prepare(result.model, recording, params, sampling, period, None, held)
-        errors.append(float(_aligned_nmse(problem)))
+        errors.append(float(_aligned_nmse(problem, jnp.asarray(shift))))
     noise = noise_level(recording.area, result.fitted_gaw(recording))
     floor = min(recording.n_frames * noise**2 / float(np.sum(recording.area**2)), errors[0])
     return Settling(own, longer, errors[0], errors[1], floor)
