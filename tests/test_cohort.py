@@ -341,6 +341,8 @@ def test_a_diagnosed_recordings_row_and_folder(serial, tmp_path):
     assert row["status"] == "done" and row["effects needed"] == ""
     assert row["first NMSE"] == row["final NMSE"] == first.nmse
     assert row["noise NMSE"] == outcome.noise_nmse and row["outcome"] == outcome.status
+    assert row["settled NMSE"] == outcome.settling.nmse
+    assert row["settled"] == ("yes" if outcome.settling.settled else "no")
     assert row["K [dyne/cm]"] == first.params["K"] and row["conclusion"] == outcome.words
     _write_study(study, rec)(tmp_path)
     assert {"fit.json", "final_fit.json", "report.md"} <= {p.name for p in tmp_path.iterdir()}

@@ -28,6 +28,8 @@ LEADING_COLUMNS = (
     "final NMSE",
     "noise NMSE",
     "fit status",
+    "settled NMSE",
+    "settled",
     "outcome",
     "effects needed",
 )
@@ -59,7 +61,7 @@ def table(rows: list[dict], groups: list[str]):
     tail = [c for c in TRAILING_COLUMNS if c in present]
     middle = [c for c in present if c not in head and c not in tail]
     frame = frame.reindex(columns=head + middle + tail)
-    for column in ("reason", "outcome", "effects needed", "conclusion", *groups):
+    for column in ("reason", "settled", "outcome", "effects needed", "conclusion", *groups):
         if column in frame:
             frame[column] = frame[column].fillna("").astype(str)
     for column in INTEGER_COLUMNS:

@@ -142,7 +142,8 @@ def fit_row(entry: CohortEntry, rec: Recording, first, seconds: float) -> dict:
 def study_row(entry: CohortEntry, rec: Recording, study, seconds: float) -> dict:
     """The row of a recording fitted and diagnosed (`vfjax.Investigation`): NMSE before and
     after, the effects added with their calibrated p-values and intervals, the final round's
-    test of cycle-to-cycle variability, the outcome and the final model's parameters."""
+    test of cycle-to-cycle variability, whether the final fit is settled (`vfjax.settling`:
+    its NMSE after the longer warm-up), the outcome and the final model's parameters."""
     outcome = study.outcome(rec)
     final = study.final
     row = {
@@ -152,6 +153,8 @@ def study_row(entry: CohortEntry, rec: Recording, study, seconds: float) -> dict
         "final NMSE": final.nmse,
         "noise NMSE": outcome.noise_nmse,
         "fit status": final.status,
+        "settled NMSE": outcome.settling.nmse,
+        "settled": "yes" if outcome.settling.settled else "no",
         "outcome": outcome.status,
         "effects needed": "; ".join(study.added),
         **_parameter_columns(final),
