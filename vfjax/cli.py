@@ -161,7 +161,7 @@ def _fit_and_report(
         restarts=FIRST_FIT_RESTARTS if restarts is None else restarts,
         swarm=Swarm(iterations=iterations),
         key=jax.random.key(key_seed),
-        **({} if warmup is None else {"warmup": warmup}),
+        warmup=warmup,
     )
     result.to_json(out / f"{recording.name}_fit.json")
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 3.4), gridspec_kw={"width_ratios": [2.2, 1]})
@@ -264,7 +264,7 @@ def cmd_diagnose(args) -> int:
 
     matplotlib.use("Agg")
     from ._diagnosis import Calibration, Criteria, investigate
-    from ._fit import Swarm, fit_recording
+    from ._fit import Swarm
     from .io import check_output_folder, staged_output
     from .presets import initial_model
     from .report import write_report
@@ -272,24 +272,17 @@ def cmd_diagnose(args) -> int:
     check_output_folder(args.out, args.force)
     rec = _load_input(args)
     model = initial_model(rec, template=args.start)
-    params = None if args.params is None else tuple(args.params)
-    swarm = Swarm(iterations=args.iterations)
     with staged_output(args.out, args.force) as out:
-        first = None
-        if args.warmup is not None:  # the first fit at the given warm-up; the refits keep it
-            first = fit_recording(
-                rec, model, params, restarts=args.restarts, swarm=swarm, warmup=args.warmup
-            )
         study = investigate(
             rec,
             model,
-            params,
-            first=first,
+            None if args.params is None else tuple(args.params),
             rounds=args.rounds,
             restarts=args.restarts,
+            warmup=args.warmup,
             criteria=Criteria(alpha=args.alpha),
             calibration=Calibration(replicates=args.replicates, seed=args.seed),
-            swarm=swarm,
+            swarm=Swarm(iterations=args.iterations),
             candidates=diagnosis_candidates(args.also),
             progress=True,
         )

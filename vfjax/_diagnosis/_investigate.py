@@ -232,6 +232,7 @@ def investigate(
     calibration: Calibration = DEFAULT_CALIBRATION,
     swarm: Swarm = DEFAULT_SWARM,
     restarts: int = FIRST_FIT_RESTARTS,
+    warmup: float | None = None,
     first: FitResult | None = None,
     progress: bool = False,
 ) -> Investigation:
@@ -251,15 +252,25 @@ def investigate(
         calibration: the diagnoses' calibration on null recordings (`Calibration`).
         swarm: the first fit's swarm; each extension runs as many iterations.
         restarts: independent searches of the first fit.
+        warmup: the first fit's simulated time before the first frame (s; default:
+            `vfjax.default_warmup`); the diagnoses refit at the same warm-up. Lengthen it
+            when the fit is not settled (`vfjax.settling`).
         first: the first fit, made already (e.g. by `vfjax.fit_recordings` of many
-            recordings in one batch); ``model``, ``params`` and ``restarts`` are then unused.
+            recordings in one batch); ``model``, ``params``, ``restarts`` and ``warmup`` are
+            then unused.
         progress: print what happens.
     """
     if not isinstance(plan, RefitPlan):
         raise TypeError(f"plan must be a vfjax.RefitPlan, got {type(plan).__name__}")
     if first is None:
         current = fit_recording(
-            recording, model, params, restarts=restarts, swarm=swarm, progress=progress
+            recording,
+            model,
+            params,
+            restarts=restarts,
+            swarm=swarm,
+            warmup=warmup,
+            progress=progress,
         )
     elif not isinstance(first, FitResult):
         raise TypeError(f"first must be a vfjax.FitResult, got {type(first).__name__}")

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._fit import FitResult, fit_many, search_range
-from .._fit._problem import PLAUSIBLE
+from .._fit._problem import PLAUSIBLE, plausible_range
 from ..presets import initial_model
 from ..recording import Recording
 from ._candidates import Candidate, extended
@@ -174,8 +174,8 @@ def refit_each(
             given = [v, anchor.get(n, v)] + [s[n] for _, ss in jobs for s in ss if s.get(n, 0) > 0]
             low, high = min(given) / plan.box, max(given) * plan.box
             if n in PLAUSIBLE:  # within the plausible range, or the values already beyond it
-                low = max(low, min([PLAUSIBLE[n][0]] + given))
-                high = min(high, max([PLAUSIBLE[n][1]] + given))
+                floor, ceiling = plausible_range(n, *given)
+                low, high = max(low, floor), min(high, ceiling)
             bounds[n] = (low, high)
     swarm = plan.swarm
     if iterations is not None:

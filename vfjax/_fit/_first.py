@@ -18,7 +18,7 @@ from ..model import VocalFoldModel
 from ..presets import PRESSURE_KEY, initial_model
 from ..recording import Recording
 from ._engine import fit, fit_many
-from ._problem import PRESSURE_RANGE
+from ._problem import plausible_range
 from ._result import FitResult
 
 #: The first fit's box for the stiffness and the damping factor, as factors of the
@@ -59,7 +59,7 @@ def first_fit_bounds(model: VocalFoldModel, params: Sequence[str]) -> dict:
         elif name == "t_c" and value > 0:
             box[name] = (0.0, HOLD_FACTOR * value)
         elif name == "P_s":
-            box[name] = (min(PRESSURE_RANGE[0], value), max(PRESSURE_RANGE[1], value))
+            box[name] = plausible_range(name, value)
     return box
 
 

@@ -79,6 +79,13 @@ def default_warmup(model: VocalFoldModel) -> float:
     return max([WARMUP] + [float(type(t).min_warmup) for t in model.terms])
 
 
+def plausible_range(name: str, *values: float) -> tuple[float, float]:
+    """``name``'s `PLAUSIBLE` interval, widened to hold ``values`` (a starting value, the
+    bounds a user gave)."""
+    low, high = PLAUSIBLE[name]
+    return min(low, *values), max(high, *values)
+
+
 def search_range(model: VocalFoldModel, name: str) -> tuple[float, float, float] | None:
     """(low, high, scale) of a linearly searched parameter, in its unit: the term's own
     ``ranges`` entry, else `LINEAR`'s, else None."""
@@ -313,9 +320,7 @@ def _limits(names, model, bounds) -> tuple[np.ndarray, np.ndarray]:
             low = 0.0
         if n in PLAUSIBLE:
             ref = float(params[n])
-            given = (bounds or {}).get(n, (ref, ref))
-            low = min(PLAUSIBLE[n][0], ref, float(given[0]))
-            high = max(PLAUSIBLE[n][1], ref, float(given[1]))
+            low, high = plausible_range(n, ref, *(float(v) for v in (bounds or {}).get(n, ())))
         floor.append(low)
         ceiling.append(high)
     return np.array(floor), np.array(ceiling)

@@ -32,9 +32,10 @@ SETTLING_WARMUP = 0.2
 class Settling:
     """The fitted model's error after its fit's warm-up and after a longer one.
 
-    Both errors are the fitted model's NMSE with S and the time shift found afresh (the best
-    of a grid of shifts half a frame apart, then polished with S), so that a longer warm-up,
-    which moves the phase of the cycle at the first frame, is compared like with like.
+    Both errors are the fitted model's NMSE with S and the time shift polished afresh (from
+    the fit's own at its warm-up; from the best of a grid of shifts half a frame apart at the
+    longer one, which moves the phase of the cycle at the first frame), so that the two are
+    compared like with like.
 
     Attributes:
         fit_warmup: the fit's warm-up (s).
@@ -73,23 +74,24 @@ class Settling:
         )
 
 
-#: Levenberg-Marquardt steps over the time shift and S from the grid's best shift.
+#: Levenberg-Marquardt steps over the time shift and S.
 _STEPS = 10
 
 
 @eqx.filter_jit
 def _aligned_nmse(problem, shift):
-    # the shift (and S) polished from the grid's best shift and from ``shift`` (s; the
-    # fit's own at its warm-up, else NaN): half a frame of misalignment on a GAW with sharp
-    # closures costs more error than a settled model's drift
-    y0, cost = problem.start(jnp.zeros(len(problem.names)))
-    basis = jnp.eye(y0.size)[len(problem.names) :]
+    # the shift (and S) polished, from ``shift`` (s) at the fit's own S where it is given
+    # (the fit's own, at its warm-up) and from the grid's best shift where it is NaN: half a
+    # frame of misalignment on a GAW with sharp closures costs more error than a settled
+    # model's drift
     n = len(problem.names)
-    own = jnp.where(jnp.isnan(shift), y0, y0.at[n].set(shift / problem.period))
+    grid, cost = problem.start(jnp.zeros(n))
+    own = grid.at[n].set(shift / problem.period)
     if problem.fit_s:
-        own = jnp.where(jnp.isnan(shift), own, own.at[-1].set(0.0))  # the fit's own S
-    costs = [levenberg_marquardt(problem.residual, y, basis, _STEPS)[1] for y in (y0, own)]
-    return jnp.minimum(jnp.minimum(*costs), cost)
+        own = own.at[-1].set(0.0)  # the model is the fit's, so its S is the reference
+    y0 = jnp.where(jnp.isnan(shift), grid, own)
+    basis = jnp.eye(y0.size)[n:]
+    return jnp.minimum(levenberg_marquardt(problem.residual, y0, basis, _STEPS)[1], cost)
 
 
 def settling(result: FitResult, recording: Recording, warmup_s: float | None = None) -> Settling:
