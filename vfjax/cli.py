@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from . import __version__
+from ._fit._options import Swarm
 from ._runtime import (  # noqa: F401  (the command line's settings, importable from here)
     CACHE_MAX_BYTES,
     CACHE_MIN_COMPILE_S,
@@ -150,7 +151,7 @@ def _fit_and_report(
     import jax
     import matplotlib.pyplot as plt
 
-    from ._fit import FIRST_FIT_RESTARTS, Swarm, fit_recording
+    from ._fit import FIRST_FIT_RESTARTS, fit_recording
     from .io import save_figure
     from .plotting import plot_convergence, plot_overlay
 
@@ -264,7 +265,6 @@ def cmd_diagnose(args) -> int:
 
     matplotlib.use("Agg")
     from ._diagnosis import Calibration, Criteria, investigate
-    from ._fit import Swarm
     from .io import check_output_folder, staged_output
     from .presets import initial_model
     from .report import write_report
@@ -300,7 +300,6 @@ def cmd_cohort(args) -> int:
     matplotlib.use("Agg")
     from ._cohort import CohortOptions, cohort
     from ._diagnosis import Calibration, Criteria
-    from ._fit import Swarm
 
     options = CohortOptions(
         diagnose=not args.fits_only,
@@ -480,7 +479,12 @@ def _diagnosis_arguments(parser) -> None:
     parser.add_argument(
         "--seed", type=int, default=0, help="seed of the null recordings (a cohort's fits too)"
     )
-    parser.add_argument("--iterations", type=int, default=60, help="PSO iterations per fit")
+    parser.add_argument(
+        "--iterations",
+        type=int,
+        default=Swarm().iterations,
+        help="PSO iterations per fit (default: %(default)s)",
+    )
     parser.add_argument(
         "--also",
         action="append",
@@ -547,7 +551,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["N1", "N2", "N3", "N4"],
         help="preset to start from (default: N1 for male or unknown, N3 for female)",
     )
-    f.add_argument("--iterations", type=int, default=60, help="PSO iterations")
+    f.add_argument(
+        "--iterations",
+        type=int,
+        default=Swarm().iterations,
+        help="PSO iterations (default: %(default)s)",
+    )
     f.add_argument(
         "--warmup",
         type=float,
@@ -611,7 +620,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="most recordings in one batched fit (default: %(default)s)",
     )
     _diagnosis_arguments(co)
-    co.add_argument("--particles", type=int, default=48, help="PSO particles per fit")
+    co.add_argument(
+        "--particles",
+        type=int,
+        default=Swarm().size,
+        help="PSO particles per fit (default: %(default)s)",
+    )
     co.add_argument(
         "--retry-failed",
         action="store_true",

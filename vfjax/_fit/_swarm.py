@@ -103,7 +103,8 @@ def settle(state: SwarmState, cost) -> SwarmState:
 
 def run_chunk(batch_cost: Callable, lowers, uppers, settings: Swarm, states, live):
     """``settings.chunk`` iterations of a batch of swarms in one `lax.scan`, of which the
-    first ``live`` (data) act and the rest leave the swarms as they are. An iteration
+    first ``live`` (data, one number for the batch) act and the rest leave the swarms as
+    they are at no cost. An iteration
     evaluates every particle's position, updates the bests and moves the particles; a swarm's
     first iteration (from `unvisited`) evaluates its initial positions, so a search of N
     iterations is N + 1 evaluations, the last move unused.
@@ -112,13 +113,16 @@ def run_chunk(batch_cost: Callable, lowers, uppers, settings: Swarm, states, liv
     call (one batched simulation of every particle of every fit). Returns the states and
     each swarm's best cost after each iteration, (fits, chunk)."""
 
-    def body(s, k):
+    def iteration(s):
         evaluated = jax.vmap(settle)(s, batch_cost(s.position))
         x, v, keys = jax.vmap(lambda lo, hi, st: move(settings, lo, hi, st))(
             lowers, uppers, evaluated
         )
-        moved = evaluated._replace(position=x, velocity=v, key=keys)
-        s = jax.tree.map(lambda a, b: jnp.where(k < live, a, b), moved, s)
+        return evaluated._replace(position=x, velocity=v, key=keys)
+
+    def body(s, k):
+        # a scalar predicate: the chunk's idle iterations simulate nothing
+        s = jax.lax.cond(k < live, iteration, lambda s: s, s)
         return s, s.global_cost
 
     states, costs = jax.lax.scan(body, states, jnp.arange(settings.chunk))
