@@ -145,6 +145,29 @@ def test_the_statistics_solver_steps_short_of_a_jump_at_once():
     assert costs[1] < costs[0]
 
 
+def test_the_statistics_solver_returns_the_best_point_it_evaluated():
+    # Near a grazing closure the same parameters can cost one value where a trial step
+    # evaluates them and another where the next step re-evaluates them with the Jacobian
+    # (rounding decides whether a hold starts). Modelled here: the primal residual is 0
+    # on (0.9, 1.1) and 2 elsewhere (-1 at the start), the jvp's primal output 10 anywhere
+    # but the start. The first step's trial reaches p = 0.99999 (sum of squares 0); from
+    # there the Jacobian's residual (10) sends every trial to p < 0 (sum of squares 4 < 100,
+    # accepted), so the last accepted point costs 4, four times the start's 1.
+    @jax.custom_jvp
+    def residual(p):
+        inside = (p[0] > 0.9) & (p[0] < 1.1)
+        return jnp.where(p[0] == 0.0, -1.0, jnp.where(inside, 0.0, 2.0))[None]
+
+    @residual.defjvp
+    def _(primals, tangents):
+        (p,), (dp,) = primals, tangents
+        return jnp.where(p[0] == 0.0, -1.0, 10.0)[None], dp[:1]
+
+    found, cost = jax.jit(lambda s: levenberg_marquardt(residual, s, jnp.eye(1), 4))(jnp.zeros(1))
+    assert float(cost) == 0.0
+    assert 0.9 < float(found[0]) < 1.1
+
+
 def _shared(shared_dir, name):
     return vfjax.load_recording(shared_dir / "data" / "synthetic" / f"{name}.csv")
 
