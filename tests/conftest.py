@@ -3,6 +3,8 @@
 import os
 import pathlib
 import shutil
+import subprocess
+import sys
 import tempfile
 
 import pytest
@@ -105,6 +107,30 @@ def check_report_html(markdown_path) -> str:
         assert head == "data:image/png;base64", head
         assert base64.b64decode(data) == (markdown_path.parent / name).read_bytes()
     return page
+
+
+def run_cli(*args, cwd=None, timeout=300, **env_vars):
+    """The command line in a new process, with the test session's compilation cache and one
+    CPU device (``VFJAX_CORES="2"`` among ``env_vars`` for two)."""
+    env = {k: v for k, v in os.environ.items() if k != "VFJAX_NO_CACHE"}
+    cache = os.environ[_CACHE_VARIABLE]
+    # one CPU device, as the test processes have: the same programs, from the session cache
+    env.update({"PYTHONUNBUFFERED": "1", "VFJAX_CACHE_DIR": cache, "VFJAX_CORES": "1"})
+    env.update(env_vars)
+    return subprocess.run(
+        [sys.executable, "-m", "vfjax", *map(str, args)],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+    )
+
+
+@pytest.fixture
+def cli():
+    """`run_cli`, for the tests that run the command line."""
+    return run_cli
 
 
 @pytest.fixture

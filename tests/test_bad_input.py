@@ -29,24 +29,6 @@ from vfjax.serialise import model_to_dict
 FPS = 4000.0
 
 
-def _cli(*args, cwd, timeout=300, **env_vars):
-    """The command line in a new process, with the test session's compilation cache and one
-    CPU device."""
-    env = {k: v for k, v in os.environ.items() if k != "VFJAX_NO_CACHE"}
-    cache = os.environ["VFJAX_TEST_SESSION_CACHE"]
-    # one CPU device, as the test processes have: the same programs, from the session cache
-    env.update({"PYTHONUNBUFFERED": "1", "VFJAX_CACHE_DIR": cache, "VFJAX_CORES": "1"})
-    env.update(env_vars)
-    return subprocess.run(
-        [sys.executable, "-m", "vfjax", *map(str, args)],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env=env,
-    )
-
-
 def _gaw(n=201):
     """A periodic, GAW-like area (px): 10 cycles of a half-rectified sine."""
     t = np.arange(n) / FPS
@@ -220,17 +202,17 @@ def test_cli_refuses_bad_input_with_one_clear_line(tmp_path, case, monkeypatch, 
 
 
 @pytest.mark.parametrize("case", ["frames_missing", "zero_cores"])
-def test_the_command_refuses_bad_input_with_one_clear_line_and_code_2(tmp_path, case):
+def test_the_command_refuses_bad_input_with_one_clear_line_and_code_2(tmp_path, case, cli):
     """The same through ``python -m vfjax`` in a process of its own: exit code 2."""
     args = _write_case(tmp_path, case)
-    run = _cli(*args, cwd=tmp_path)
+    run = cli(*args, cwd=tmp_path)
     _one_clear_line(case, run.returncode, run.stderr)
 
 
-def test_cli_reads_its_own_simulated_output(tmp_path):
+def test_cli_reads_its_own_simulated_output(tmp_path, cli):
     """The simulated table's areas are what a camera sees (clipped at zero), with the model's
     signed area beside them: vfjax's own loader takes it back."""
-    run = _cli("simulate", "N1", "-o", "sim.csv", cwd=tmp_path)
+    run = cli("simulate", "N1", "-o", "sim.csv", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     rec = load_recording(tmp_path / "sim.csv")
     sim = vfjax.simulate(vfjax.preset("N1"), FPS, 201)
@@ -270,18 +252,18 @@ def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(
     assert saved["status"] == "worse_than_mean"
 
 
-def test_cli_keeps_compiled_programs_in_a_persistent_cache(tmp_path):
+def test_cli_keeps_compiled_programs_in_a_persistent_cache(tmp_path, cli):
     """The command line caches compiled programs in a folder (here VFJAX_CACHE_DIR); a folder
     it cannot write leaves the cache off with one warning, and the run goes on."""
     cache = tmp_path / "cache"
-    run = _cli(
+    run = cli(
         "simulate", "N1", "-o", "a.csv", cwd=tmp_path, VFJAX_NO_CACHE="", VFJAX_CACHE_DIR=str(cache)
     )
     assert run.returncode == 0, run.stderr
     assert any(p.is_file() and not p.name.startswith(".") for p in cache.rglob("*"))
     blocker = tmp_path / "a_file"
     blocker.write_text("")
-    run = _cli(
+    run = cli(
         "simulate",
         "N1",
         "-o",

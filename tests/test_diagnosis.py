@@ -8,9 +8,6 @@ slow (`python -m pytest -m slow`)."""
 import dataclasses
 import json
 import math
-import os
-import subprocess
-import sys
 from typing import ClassVar
 
 import equinox as eqx
@@ -259,19 +256,14 @@ def test_shared_gap_case_second_round_finds_nothing(shared_dir):
 
 
 @pytest.mark.slow  # about 3 minutes: the command line's defaults on two CPU devices
-def test_the_command_line_adds_the_shared_gap_at_the_default_level(shared_dir, tmp_path):
+def test_the_command_line_adds_the_shared_gap_at_the_default_level(shared_dir, tmp_path, cli):
     """`vfjax diagnose` of the shared syn_gap as a user runs it: alpha 0.01, up to 111 null
     recordings, the default search, two CPU devices (the statistic split over them, which
     rounds otherwise than one device). Its final fit carries the hidden gap, within 20 %."""
     folder = shared_dir / "data" / "synthetic"
     answer = json.loads((folder / "syn_gap.answer.json").read_text())
-    env = {k: v for k, v in os.environ.items() if k != "VFJAX_NO_CACHE"}
-    env.update({"VFJAX_CACHE_DIR": os.environ["VFJAX_TEST_SESSION_CACHE"], "VFJAX_CORES": "2"})
     out = tmp_path / "d"
-    command = [sys.executable, "-m", "vfjax", "diagnose", str(folder / "syn_gap.csv")]
-    run = subprocess.run(
-        [*command, "--out", str(out)], capture_output=True, text=True, env=env, timeout=900
-    )
+    run = cli("diagnose", folder / "syn_gap.csv", "--out", out, timeout=900, VFJAX_CORES="2")
     assert run.returncode == 0, run.stderr[-2000:]
     final = vfjax.FitResult.from_json(out / "syn_gap_final_fit.json")
     assert final.model.has(GlottalGap), run.stdout

@@ -64,7 +64,7 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     ratios = jnp.asarray(_DAMPING_TRIALS, y0.dtype)
 
     def step(carry, _):
-        y, _, damping, y_best, c_best = carry
+        y, damping, y_best, c_best = carry
         # the residual at y comes with its Jacobian: no simulation of its own
         r, j = jacobian_columns(residual, y, basis)
         c = jnp.sum(r**2)
@@ -88,11 +88,10 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
         c = jnp.where(better, costs[best], c)
         y_best, c_best = _better((y, c), (y_best, c_best))
         damping = jnp.clip(jnp.where(better, levels[best], damping * _DAMPING_RISE), 1e-12, 1e12)
-        return (y, c, damping, y_best, c_best), None
+        return (y, damping, y_best, c_best), None
 
-    inf = jnp.asarray(jnp.inf, y0.dtype)
-    init = (y0, inf, jnp.asarray(1e-2, y0.dtype), y0, inf)
-    (_, _, _, y, c), _ = jax.lax.scan(step, init, None, length=steps)
+    init = (y0, jnp.asarray(1e-2, y0.dtype), y0, jnp.asarray(jnp.inf, y0.dtype))
+    (_, _, y, c), _ = jax.lax.scan(step, init, None, length=steps)
     return y, c
 
 

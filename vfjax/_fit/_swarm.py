@@ -104,10 +104,10 @@ def settle(state: SwarmState, cost) -> SwarmState:
 def run_chunk(batch_cost: Callable, lowers, uppers, settings: Swarm, states, live):
     """``settings.chunk`` iterations of a batch of swarms in one `lax.scan`, of which the
     first ``live`` (data, one number for the batch) act and the rest leave the swarms as
-    they are at no cost. An iteration
-    evaluates every particle's position, updates the bests and moves the particles; a swarm's
-    first iteration (from `unvisited`) evaluates its initial positions, so a search of N
-    iterations is N + 1 evaluations, the last move unused.
+    they are at no cost. An iteration evaluates every particle's position, updates the bests
+    and moves the particles; a swarm's first iteration (from `unvisited`) evaluates its
+    initial positions, so a search of N iterations is N + 1 evaluations, the last move
+    unused.
 
     ``batch_cost`` maps the positions of every swarm, (fits, n, d), to their costs in one
     call (one batched simulation of every particle of every fit). Returns the states and
