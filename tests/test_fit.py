@@ -298,29 +298,37 @@ def test_a_fit_in_a_batch_equals_the_fit_alone():
 
 
 def test_a_long_recording_is_fitted_by_continuation_in_its_length():
-    """A recording of about 50 cycles (N1, 0.15 s at 2 kHz, closure jitter): the swarm and a
+    """A recording of about 31 cycles (N3, 0.15 s at 2 kHz, closure jitter): the swarm and a
     first polish fit its first 16 cycles, the next polish all of them; the fit reaches the
-    noise floor (a relative f0 error of 2 % would slip a whole cycle). In one batch with a
+    error of the true parameters polished (a relative f0 error of 3 % would slip a whole
+    cycle; a closure hold one cycle longer skips every other closure). In one batch with a
     short recording, each fit equals its fit alone: the short one is polished once, from
     its swarm's best, as alone."""
     from vfjax._fit._engine import _stages
 
-    long = vfjax.datasets.demo_recording("N1", 1.5, 3, 2000.0, 301, jitter=0.003)
-    clean = vfjax.datasets.demo_recording("N1", 0.0, 3, 2000.0, 301, jitter=0.003)
-    short = vfjax.datasets.demo_recording("N1", 1.5, 4, 2000.0, 101)
+    long = vfjax.datasets.demo_recording("N3", 1.5, 3, 2000.0, 301, jitter=0.003)
+    clean = vfjax.datasets.demo_recording("N3", 0.0, 3, 2000.0, 301, jitter=0.003)
+    short = vfjax.datasets.demo_recording("N3", 1.5, 4, 2000.0, 101)
     period = 1.0 / vfjax.descriptors.fundamental_frequency(long.area, long.fps)
     stages = _stages([long, short], [(None, period)] * 2)
     assert len(stages) == 2 and stages[-1] == [301, 101] and stages[0][1] == 101
     assert stages[0][0] == pytest.approx(16 * period * 2000.0, abs=1)
-    swarm, key = Swarm(size=16, iterations=20), jax.random.key(0)
+    swarm, key = Swarm(size=16, iterations=40), jax.random.key(0)
     both = vfjax.fit_recordings([long, short], restarts=1, swarm=swarm, key=key)
+    truth = vfjax.fit(
+        vfjax.preset("N3"), long, params=("S", "K", "C_f", "t_c"), swarm=Swarm(iterations=0)
+    )
     floor = np.sum((long.area - clean.area) ** 2) / np.sum(long.area**2)
-    assert both[0].nmse < 1.2 * floor, (both[0].nmse, floor)
-    assert both[0].params["K"] == pytest.approx(float(vfjax.preset("N1").params()["K"]), rel=0.05)
-    for rec, fitted in zip((long, short), both):
+    assert truth.nmse < 4.0 * floor  # rounding to whole pixels and the closure jitter
+    assert both[0].nmse < 1.02 * truth.nmse, (both[0].nmse, truth.nmse)
+    assert both[0].params["K"] == pytest.approx(float(vfjax.preset("N3").params()["K"]), rel=0.05)
+    # the long recording runs through the same programs alone; the short one, alone in the
+    # 128-frame bucket, in the batch's 512: the swarm's costs then round otherwise (1e-16),
+    # and its polish ends 1e-7 away along a flat valley of the error, at the same NMSE
+    for rec, fitted, rel in zip((long, short), both, (1e-9, 1e-6)):
         alone = vfjax.fit_recording(rec, restarts=1, swarm=swarm, key=key)
         assert fitted.nmse == pytest.approx(alone.nmse, rel=1e-9)
-        assert fitted.params == pytest.approx(alone.params, rel=1e-9)
+        assert fitted.params == pytest.approx(alone.params, rel=rel)
 
 
 def test_bad_input_is_refused():

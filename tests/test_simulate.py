@@ -133,6 +133,28 @@ def test_substeps_converge():
     assert errs[1] < errs[0] and errs[1] < 1e-6
 
 
+@pytest.mark.parametrize("name", ["N1", "N3"])
+def test_a_slow_camera_gets_steps_short_enough_by_default(name):
+    """At 2 kHz, 4 RK4 steps a frame (125 us) simulate N1 and N3 without their closed phase
+    (NMSE about 2 against a converged reference); the default steps a frame keep the step
+    within 1/16 000 s, as at 4 kHz, and the GAW within 1e-4 of the reference."""
+    m = vfjax.preset(name)
+    assert vfjax.default_substeps(2000.0) == 8 and vfjax.default_substeps(3000.0) == 6
+    assert vfjax.default_substeps(4000.0) == vfjax.default_substeps(20000.0) == 4
+    assert vfjax.Sampling(2000.0, 201).substeps == 8
+    ref = np.asarray(vfjax.simulate(m, 2000.0, 201, substeps=64, t_start=0.03).area)
+
+    def error(area):
+        return float(np.sum((np.asarray(area) - ref) ** 2) / np.sum(ref**2))
+
+    assert error(vfjax.simulate(m, 2000.0, 201, t_start=0.03).area) < 1e-4
+    assert error(vfjax.simulate(m, 2000.0, 201, substeps=4, t_start=0.03).area) > 0.5
+    # a fit samples a 2 kHz recording at the same default
+    rec = vfjax.Recording(area=np.clip(ref, 0.0, None), fps=2000.0)
+    fitted = vfjax.fit(m, rec, params=("S",), swarm=vfjax.Swarm(size=4, iterations=0))
+    assert fitted.sampling.substeps == 8 and fitted.nmse < 1e-4
+
+
 def test_time_shift_is_differentiable_and_moves_the_samples():
     m = vfjax.preset("N1")
     shift = 1.0e-4

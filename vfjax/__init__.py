@@ -54,12 +54,11 @@ from ._fit import (  # noqa: E402
     search_range,
     settling,
 )
-from ._sampling import Sampling, length_bucket  # noqa: E402
+from ._sampling import DEFAULT_SUBSTEPS, Sampling, default_substeps, length_bucket  # noqa: E402
 from ._validate import Constraint, as_parameter  # noqa: E402
 from .cost import nmse  # noqa: E402
 from .descriptors import estimate_closure_duration  # noqa: E402
 from .integrator import (  # noqa: E402
-    DEFAULT_SUBSTEPS,
     RESULTS,
     DenseOutput,
     Simulation,
@@ -118,6 +117,7 @@ __all__ = [
     "video",
     "initial_model",
     "DEFAULT_SUBSTEPS",
+    "default_substeps",
     "FRAME_RATE_RANGE_HZ",
     "RESULTS",
     "SimulationError",

@@ -42,7 +42,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from . import phases
 from ._hermite import hermite, hermite_root, hermite_slope
-from ._sampling import DEFAULT_SUBSTEPS, Sampling, length_bucket
+from ._sampling import Sampling, default_substeps, length_bucket
 from .model import VocalFoldModel
 from .terms.base import AbstractFoldPair, AbstractStatefulTerm
 from .terms.paper import BernoulliForce
@@ -661,7 +661,8 @@ def simulate(
             and ``max_time_shift`` are not given.
         n_frames: number of frames, an integer (a NumPy integer is accepted; 201.0 is not).
         substeps: RK4 steps per frame (the step is 1 / (substeps * fps)); default
-            `DEFAULT_SUBSTEPS`.
+            `default_substeps` of ``fps`` (4, more below 4 kHz: the step stays within
+            1/16 000 s).
         t_start: start of sampling (s), e.g. to skip the onset transient; default 0.
         time_shift: extra, differentiable delay of the sampling (s), in [-t_start,
             max_time_shift] (the frames must lie in the integrated interval).
@@ -708,10 +709,10 @@ def simulate(
         t_start, max_time_shift = sampling.warmup, sampling.max_time_shift
     elif n_frames is None:
         raise TypeError("simulate: give n_frames with a frame rate (or a vfjax.Sampling)")
-    substeps = DEFAULT_SUBSTEPS if substeps is None else substeps
     t_start = 0.0 if t_start is None else t_start
     max_time_shift = 0.0 if max_time_shift is None else max_time_shift
     fps = _as_seconds("fps (frame rate, Hz)", fps, positive=True)
+    substeps = default_substeps(fps) if substeps is None else substeps
     n_frames = _as_count("n_frames", n_frames, 1)
     substeps = _as_count("substeps", substeps, 1)
     t_start = _as_seconds("t_start", t_start)

@@ -29,7 +29,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
-from .._sampling import DEFAULT_SUBSTEPS
+from .._sampling import default_substeps
 from ..model import VocalFoldModel
 from ..recording import Recording
 from ..terms.base import AbstractFoldPair
@@ -288,7 +288,7 @@ def fit_many(
     swarm: Swarm = DEFAULT_SWARM,
     polish: Polish | None = DEFAULT_POLISH,
     warmup: float | None = None,
-    substeps: int = DEFAULT_SUBSTEPS,
+    substeps: int | None = None,
     key: Array | None = None,
     hold: Sequence[Sequence[str]] | None = None,
     progress: bool | None = None,
@@ -329,7 +329,8 @@ def fit_many(
             budget); None: the swarm's best point.
         warmup: simulated time before the first frame (s); default: the longest
             `default_warmup` of the models.
-        substeps: RK4 steps per frame.
+        substeps: RK4 steps per frame (default: `vfjax.default_substeps` of each recording's
+            frame rate).
         key: `jax.random` key; the same key gives the same results. Default: key(0). Or
             an array of keys, one per recording (shape ``(len(recordings),)``): fit i then
             draws from ``key[i]`` in place of ``fold_in(key, i)``, so that a recording's
@@ -385,7 +386,10 @@ def fit_many(
     for r in recordings:
         if not isinstance(r, Recording):
             raise TypeError(f"recording must be a vfjax.Recording, got {type(r).__name__}")
-    samplings = [fit_sampling(r, warmup, substeps) for r in recordings]
+    samplings = [
+        fit_sampling(r, warmup, default_substeps(r.fps) if substeps is None else substeps)
+        for r in recordings
+    ]
     sizes = [program_size(s) for s, _ in samplings]
     size = tuple(max(x) for x in zip(*sizes))
     with_folds = [r.folds is not None for r in recordings]
@@ -433,7 +437,7 @@ def fit_many(
             )[1]
         )
     swarm_batch = windows[0] if windows else batch
-    active = jnp.arange(n_fits + pad) < n_fits
+    active = np.arange(n_fits + pad) < n_fits
     lowers = jnp.stack([lo for lo, _ in boxes] + [boxes[0][0]] * pad)
     uppers = jnp.stack([hi for _, hi in boxes] + [boxes[0][1]] * pad)
     # fit i's keys depend on i (and the restart) alone, not on the batch's size
@@ -481,18 +485,21 @@ def fit_many(
     t1 = time.perf_counter()
     found = states.global_position
     n_y = problems[0].point_size
-    no_points = jnp.zeros((found.shape[0], n_y), found.dtype)
-    from_swarm = jnp.zeros(found.shape[0], bool)
+    # the starting points and masks go in as host arrays, so that every call of a bucket's
+    # program finds the same input placement (a point returned by an earlier stage lies on
+    # the devices otherwise than an array made here, and JAX would compile the program again)
+    no_points = np.zeros((found.shape[0], n_y), found.dtype)
+    from_swarm = np.zeros(found.shape[0], bool)
     if not windows:
         polished = _polish_batch(batch, active, found, no_points, from_swarm, polish)
     else:
         # a long recording's windows, each polish from the last one's point; the other
         # recordings of the batch are polished once, from the swarm's best, as alone
-        long = jnp.asarray(np.r_[long_fits[owner], np.zeros(pad, bool)])
+        long = np.r_[long_fits[owner], np.zeros(pad, bool)]
         points, given = no_points, from_swarm
         for stage in windows:
             start = _polish_batch(stage, active & long, found, points, given, polish)
-            points, given = start[2 if polish else 0], long
+            points, given = np.asarray(start[2 if polish else 0]), long
         polished = _polish_batch(batch, active, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
