@@ -437,7 +437,7 @@ def fit_many(
             )[1]
         )
     swarm_batch = windows[0] if windows else batch
-    active = np.arange(n_fits + pad) < n_fits
+    active = jnp.arange(n_fits + pad) < n_fits
     lowers = jnp.stack([lo for lo, _ in boxes] + [boxes[0][0]] * pad)
     uppers = jnp.stack([hi for _, hi in boxes] + [boxes[0][1]] * pad)
     # fit i's keys depend on i (and the restart) alone, not on the batch's size
@@ -485,21 +485,18 @@ def fit_many(
     t1 = time.perf_counter()
     found = states.global_position
     n_y = problems[0].point_size
-    # the starting points and masks go in as host arrays, so that every call of a bucket's
-    # program finds the same input placement (a point returned by an earlier stage lies on
-    # the devices otherwise than an array made here, and JAX would compile the program again)
-    no_points = np.zeros((found.shape[0], n_y), found.dtype)
-    from_swarm = np.zeros(found.shape[0], bool)
+    no_points = jnp.zeros((found.shape[0], n_y), found.dtype)
+    from_swarm = jnp.zeros(found.shape[0], bool)
     if not windows:
         polished = _polish_batch(batch, active, found, no_points, from_swarm, polish)
     else:
         # a long recording's windows, each polish from the last one's point; the other
         # recordings of the batch are polished once, from the swarm's best, as alone
-        long = np.r_[long_fits[owner], np.zeros(pad, bool)]
+        long = jnp.asarray(np.r_[long_fits[owner], np.zeros(pad, bool)])
         points, given = no_points, from_swarm
         for stage in windows:
             start = _polish_batch(stage, active & long, found, points, given, polish)
-            points, given = np.asarray(start[2 if polish else 0]), long
+            points, given = start[2 if polish else 0], long
         polished = _polish_batch(batch, active, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
