@@ -63,9 +63,10 @@ class Sampling(eqx.Module):
     max_time_shift: float = eqx.field(default=0.0, converter=float)
 
     def __post_init__(self):
-        if not (math.isfinite(self.fps) and self.fps > 0):
-            raise ValueError(f"Sampling: fps must be a finite frame rate > 0 Hz, got {self.fps}")
-        self.substeps = default_substeps(self.fps) if self.substeps is None else int(self.substeps)
+        if self.substeps is not None:
+            self.substeps = int(self.substeps)
+        elif math.isfinite(self.fps) and self.fps > 0:  # else `__check_init__` refuses the rate
+            self.substeps = default_substeps(self.fps)
 
     def __check_init__(self):
         if not (math.isfinite(self.fps) and self.fps > 0):

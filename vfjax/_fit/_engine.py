@@ -29,7 +29,6 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array
 
-from .._sampling import default_substeps
 from ..model import VocalFoldModel
 from ..recording import Recording
 from ..terms.base import AbstractFoldPair
@@ -386,10 +385,7 @@ def fit_many(
     for r in recordings:
         if not isinstance(r, Recording):
             raise TypeError(f"recording must be a vfjax.Recording, got {type(r).__name__}")
-    samplings = [
-        fit_sampling(r, warmup, default_substeps(r.fps) if substeps is None else substeps)
-        for r in recordings
-    ]
+    samplings = [fit_sampling(r, warmup, substeps) for r in recordings]
     sizes = [program_size(s) for s, _ in samplings]
     size = tuple(max(x) for x in zip(*sizes))
     with_folds = [r.folds is not None for r in recordings]

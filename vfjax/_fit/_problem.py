@@ -344,8 +344,11 @@ def bounds_in_units(problem: Problem, lower, upper) -> dict:
     return out
 
 
-def fit_sampling(recording: Recording, warmup: float, substeps: int) -> tuple[Sampling, float]:
-    """The `Sampling` of a fit of ``recording`` and the recording's cycle length T0 (s)."""
+def fit_sampling(
+    recording: Recording, warmup: float, substeps: int | None
+) -> tuple[Sampling, float]:
+    """The `Sampling` of a fit of ``recording`` and the recording's cycle length T0 (s);
+    ``substeps`` None: `Sampling`'s default for the recording's frame rate."""
     f0 = fundamental_frequency(recording.area, recording.fps)
     if not np.isfinite(f0):
         raise ValueError(
