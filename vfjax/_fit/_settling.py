@@ -43,7 +43,10 @@ class Settling:
         fit_nmse: NMSE after the fit's warm-up.
         nmse: NMSE after the longer warm-up.
         noise_nmse: the NMSE that the recording's white noise alone leaves
-            (`vfjax.descriptors.noise_level` of the fit's residual).
+            (`vfjax.descriptors.noise_level` of the fit's residual), at most the fit's own;
+            the fit's own where the residual does not show the noise (too few runs of five
+            open frames, as at 2 000 fps on a short open phase): the residual holds the
+            noise, so its error bounds the noise's.
     """
 
     fit_warmup: float
@@ -125,5 +128,6 @@ def settling(result: FitResult, recording: Recording, warmup_s: float | None = N
         problem, _, _ = prepare(result.model, recording, params, sampling, period, None, held)
         errors.append(float(_aligned_nmse(problem, jnp.asarray(shift))))
     noise = noise_level(recording.area, result.fitted_gaw(recording))
-    floor = min(recording.n_frames * noise**2 / float(np.sum(recording.area**2)), errors[0])
+    measured = recording.n_frames * noise**2 / float(np.sum(recording.area**2))
+    floor = min(measured, errors[0]) if noise > 0 else errors[0]
     return Settling(own, longer, errors[0], errors[1], floor)
