@@ -98,8 +98,9 @@ def fit_recording(
             `first_fit_bounds`' entries.
         settle: where no ``warmup`` is given, check the fit at the default warm-up with
             `vfjax.settling` and, if it is not settled, fit again (the same search, the same
-            key) after `SETTLING_WARMUP` s and return that fit: its ``sampling.warmup`` says
-            which one it is. False: the fit at the default warm-up, as it ends.
+            key) after `SETTLING_WARMUP` s and return that fit, unless its search failed:
+            its ``sampling.warmup`` says which one it is. False: the fit at the default
+            warm-up, as it ends.
         options: the rest of `vfjax.fit`'s options (``swarm``, ``polish``, ``warmup``,
             ``substeps``, ``key``, ``progress``, ``callback``).
     """
@@ -112,7 +113,16 @@ def fit_recording(
     if not _to_settle(settle, options, [result], [recording]):
         return result
     options = {**options, "warmup": SETTLING_WARMUP}
-    return fit(model, recording, params, bounds=box, restarts=restarts, **options)
+    again = fit(model, recording, params, bounds=box, restarts=restarts, **options)
+    return _settled_or_first(result, again)
+
+
+def _settled_or_first(first: FitResult, again: FitResult) -> FitResult:
+    """The fit after `SETTLING_WARMUP` (``again``) in place of the first fit, unless its
+    search failed (``status`` "worse_than_mean" or "not_finite": the model fitted there does
+    not describe the waveform), where the first fit, whose settling says what it is, is
+    kept."""
+    return first if again.status in ("worse_than_mean", "not_finite") else again
 
 
 def _to_settle(settle: bool, options: dict, results, recordings) -> list[int]:
@@ -196,5 +206,5 @@ def fit_recordings(
             **{**options, "warmup": SETTLING_WARMUP},
         )
         for i, r in zip(again, refits):
-            results[i] = r
+            results[i] = _settled_or_first(results[i], r)
     return results
