@@ -1,5 +1,6 @@
 """Fitting against truths the fit did not make: known parameters, and the shared synthetic case."""
 
+import dataclasses
 import json
 import pathlib
 
@@ -11,6 +12,7 @@ import pytest
 
 import vfjax
 from vfjax import Polish, Swarm, fit, fit_many
+from vfjax._fit._first import _settled_or_first
 from vfjax.recording import Recording, load_recording
 
 FPS = 4000.0
@@ -485,6 +487,13 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     assert "not settled" in transient.words() and "warmup=0.2" in transient.words()
     with pytest.raises(ValueError, match="longer than the fit's"):
         vfjax.settling(fitted, start_up, warmup_s=0.01)
+    # a first fit that is not settled gives way to its fit after SETTLING_WARMUP, unless
+    # that one's search failed: a model that does not describe the waveform there says less
+    # than the unsettled fit, which then stays, with its settling's warning
+    for status in ("successful", "at_bound", "worse_than_mean", "not_finite"):
+        again = dataclasses.replace(result, status=status)
+        kept = _settled_or_first(fitted, again)
+        assert kept is (fitted if status in ("worse_than_mean", "not_finite") else again)
     # a slow camera: at 2 000 fps N3's open phase holds too few runs of five open frames for
     # the residual to show its 2 px noise; the fit's own error then bounds the noise's, so
     # the rounding of two realignments is not read as a start-up

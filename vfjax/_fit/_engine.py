@@ -180,7 +180,32 @@ def _particle_mesh(swarm: Swarm):
     return jax.sharding.Mesh(np.array(devices), ("particles",))
 
 
-# The polish runs the fits of a batch one after the other (`lax.map`), not side by side:
+#: Fits per call of the compiled polish: a batch of any size is polished
+#: `POLISH_SLICE` fits at a time through one program, which therefore does not depend on
+#: the batch's size (a loop of at least two trips: XLA compiles a loop of one trip into
+#: other code, which rounds differently).
+POLISH_SLICE = 2
+
+
+def _polish_slices(batch, active, positions, points, from_point, polish: Polish | None):
+    """`_polish_batch` of a batch (padded to a multiple of `POLISH_SLICE` fits), one slice of
+    `POLISH_SLICE` fits per call, the outputs joined in the batch's order. A call polishes
+    its fits to the end in one compiled solve; the host is reached between slices only."""
+    n = int(active.shape[0])
+    if n % POLISH_SLICE:
+        raise ValueError(f"a batch of {n} fits is not a multiple of {POLISH_SLICE}")
+    parts = []
+    for start in range(0, n, POLISH_SLICE):
+
+        def cut(x, start=start):
+            return x[start : start + POLISH_SLICE] if eqx.is_array(x) else x
+
+        args = jax.tree.map(cut, (batch, active, positions, points, from_point))
+        parts.append(_polish_batch(*args, polish))
+    return jax.tree.map(lambda *xs: jnp.concatenate(xs), *parts)
+
+
+# The polish runs the fits of a slice one after the other (`lax.map`), not side by side:
 # each fit's solve is already batched over its Jacobian's columns, a vmapped solve would run
 # every fit for as many steps as the slowest one, and each fit then computes exactly what it
 # computes alone (a vmapped batch rounds differently from a batch of one). Padding fits
@@ -477,23 +502,23 @@ def fit_many(
     pso_traces = np.concatenate(traces, axis=1)
     t_pso = time.perf_counter() - t0
 
-    # Stage 2: the polish, one compiled solve for the whole batch.
+    # Stage 2: the polish, `POLISH_SLICE` fits per call of one compiled solve.
     t1 = time.perf_counter()
     found = states.global_position
     n_y = problems[0].point_size
     no_points = jnp.zeros((found.shape[0], n_y), found.dtype)
     from_swarm = jnp.zeros(found.shape[0], bool)
     if not windows:
-        polished = _polish_batch(batch, active, found, no_points, from_swarm, polish)
+        polished = _polish_slices(batch, active, found, no_points, from_swarm, polish)
     else:
         # a long recording's windows, each polish from the last one's point; the other
         # recordings of the batch are polished once, from the swarm's best, as alone
         long = jnp.asarray(np.r_[long_fits[owner], np.zeros(pad, bool)])
         points, given = no_points, from_swarm
         for stage in windows:
-            start = _polish_batch(stage, active & long, found, points, given, polish)
+            start = _polish_slices(stage, active & long, found, points, given, polish)
             points, given = start[2 if polish else 0], long
-        polished = _polish_batch(batch, active, found, points, given, polish)
+        polished = _polish_slices(batch, active, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
         y, cost, steps = (np.asarray(a) for a in polished[2:5])
