@@ -194,14 +194,18 @@ def _polish_slices(batch, active, positions, points, from_point, polish: Polish 
     n = int(active.shape[0])
     if n % POLISH_SLICE:
         raise ValueError(f"a batch of {n} fits is not a multiple of {POLISH_SLICE}")
+    # the leaves as host arrays, whose slices are views (a slice of a jax.Array is an op)
+    host = jax.tree.map(
+        lambda x: np.asarray(x) if eqx.is_array(x) else x,
+        (batch, active, positions, points, from_point),
+    )
     parts = []
     for start in range(0, n, POLISH_SLICE):
 
         def cut(x, start=start):
-            return x[start : start + POLISH_SLICE] if eqx.is_array(x) else x
+            return x[start : start + POLISH_SLICE] if isinstance(x, np.ndarray) else x
 
-        args = jax.tree.map(cut, (batch, active, positions, points, from_point))
-        parts.append(_polish_batch(*args, polish))
+        parts.append(_polish_batch(*jax.tree.map(cut, host), polish))
     return jax.tree.map(lambda *xs: jnp.concatenate(xs), *parts)
 
 
