@@ -342,6 +342,42 @@ def test_a_swallowed_interrupt_still_ends_the_run_and_its_staged_output(tmp_path
     assert not list(tmp_path.glob(".out.partial-*"))
 
 
+def test_an_interrupt_a_library_turns_into_an_error_is_still_an_interrupt(tmp_path):
+    """A Ctrl-C whose KeyboardInterrupt a library catches and replaces by an error of its own
+    (matplotlib raises "Invalid bounding box" when it lands in a drawing) ends the run as an
+    interrupt: code 130 and the one line, not code 2 and the library's message."""
+    script = textwrap.dedent(
+        """
+        import time
+        import vfjax.cli as cli
+
+        def drawing(args):
+            try:
+                print("ready", flush=True)
+                while True:
+                    time.sleep(0.05)
+            except KeyboardInterrupt:
+                raise ValueError("Invalid bounding box")
+
+        cli.cmd_simulate = drawing
+        raise SystemExit(cli.main(["--no-cache", "simulate", "N1", "-o", "gaw.csv"]))
+        """
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout.readline().strip() == "ready"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert "Invalid bounding box" not in err and "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "vfjax: interrupted; the output folder is left as it was"
+
+
 def test_an_interrupt_inside_a_finaliser_ends_the_run_without_a_traceback(tmp_path):
     """A Ctrl-C that lands in a garbage-collection callback or a finaliser (JAX runs one
     on every collection) cannot unwind the stack: the command line's unraisable hook ends

@@ -692,6 +692,7 @@ def _interrupt_handler(outputs):
         timer.start()
         raise KeyboardInterrupt
 
+    handler.pressed = pressed
     return handler
 
 
@@ -730,17 +731,23 @@ def main(argv=None) -> int:
     outputs = [p for p in (getattr(args, n, None) for n in ("out", "output")) if p]
     previous = None
     previous_hook = sys.unraisablehook
+    handler = _interrupt_handler(outputs)
     if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGINT, _interrupt_handler(outputs))
+        previous = signal.signal(signal.SIGINT, handler)
         sys.unraisablehook = _unraisable_hook(outputs, previous_hook)
     try:
         return args.func(args)
     except KeyboardInterrupt:
         _exit_interrupted([])
-    except SimulationError as err:
-        print(f"vfjax: simulation failed: {err}", file=sys.stderr)
-        return 1
-    except (ValueError, TypeError, OSError, ImportError) as err:
+    except (SimulationError, ValueError, TypeError, OSError, ImportError) as err:
+        if handler.pressed:
+            # a library that catches the KeyboardInterrupt inside its own code raises an
+            # error of its own instead (matplotlib's "Invalid bounding box" when Ctrl-C
+            # lands in a drawing): the run was interrupted, not given bad input
+            _exit_interrupted([])
+        if isinstance(err, SimulationError):
+            print(f"vfjax: simulation failed: {err}", file=sys.stderr)
+            return 1
         print(f"vfjax: error: {err}", file=sys.stderr)
         return 2
     finally:
