@@ -117,6 +117,11 @@ def test_same_key_same_result_and_callback():
     c = fit(start, rec, key=jax.random.key(8), **kw)
     assert a.params == b.params and a.pso_trace == b.pso_trace
     assert a.pso_trace != c.pso_trace
+    # a raw key (jax.random.PRNGKey, two uint32 words) is that key, not two keys of one word
+    raw = fit(start, rec, key=jax.random.PRNGKey(7), **kw)
+    assert raw.params == a.params and raw.pso_trace == a.pso_trace
+    with pytest.raises(TypeError, match="jax.random key"):
+        fit(start, rec, key=np.arange(3.0), **kw)
     # after each compiled chunk of 4 evaluations: the initial swarm (iteration 0), 1-3, ...
     assert [i for i, _ in seen] == [3, 7, 10]
     assert len(a.pso_trace) == 11

@@ -359,10 +359,11 @@ def fit_many(
             `default_warmup` of the models.
         substeps: RK4 steps per frame (default: `vfjax.default_substeps` of each recording's
             frame rate).
-        key: `jax.random` key; the same key gives the same results. Default: key(0). Or
-            an array of keys, one per recording (shape ``(len(recordings),)``): fit i then
-            draws from ``key[i]`` in place of ``fold_in(key, i)``, so that a recording's
-            fit is the same in any batch and at any position in it.
+        key: `jax.random` key (typed, `jax.random.key`, or raw, `jax.random.PRNGKey`); the
+            same key gives the same results. Default: key(0). Or an array of keys, one per
+            recording (shape ``(len(recordings),)``, raw: ``(len(recordings), 2)``): fit i
+            then draws from ``key[i]`` in place of ``fold_in(key, i)``, so that a
+            recording's fit is the same in any batch and at any position in it.
         hold: for each fit, names among ``params`` (S excepted) that stay at that model's
             value: fits of different parameter subsets of one model then share one batch and
             one program (the diagnosis refits every candidate effect this way). A held
@@ -397,7 +398,7 @@ def fit_many(
     hold = [()] * len(models) if hold is None else [tuple(h) for h in hold]
     if len(hold) != len(models):
         raise ValueError(f"got {len(hold)} hold lists for {len(recordings)} recordings")
-    key = jax.random.key(0) if key is None else key
+    key = _typed_key(jax.random.key(0) if key is None else key)
     per_fit_keys = jnp.ndim(key) == 1
     if per_fit_keys and len(key) != len(recordings):
         raise ValueError(f"got {len(key)} keys for {len(recordings)} recordings")
@@ -586,6 +587,21 @@ def fit_many(
             )
         )
     return results
+
+
+def _typed_key(key):
+    """``key`` as a typed `jax.random` key (array): a raw key of `jax.random.PRNGKey`
+    (uint32, shape ``(2,)``, or ``(n, 2)`` for one per recording) is wrapped, so that a raw
+    key is one key, not two keys of one number each."""
+    key = jnp.asarray(key)
+    if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return key
+    if key.dtype != jnp.uint32 or key.ndim not in (1, 2) or key.shape[-1] != 2:
+        raise TypeError(
+            "key must be a jax.random key (jax.random.key or jax.random.PRNGKey), or an "
+            f"array of them, got {key.dtype} of shape {key.shape}"
+        )
+    return jax.random.wrap_key_data(key)
 
 
 def fit(

@@ -26,7 +26,7 @@ from jaxtyping import Array
 from ..model import VocalFoldModel
 from ..presets import PRESSURE_KEY, initial_model
 from ..recording import Recording
-from ._engine import fit, fit_many
+from ._engine import fit_many
 from ._problem import plausible_range
 from ._result import FitResult
 from ._settling import SETTLING_WARMUP, settling
@@ -106,15 +106,13 @@ def fit_recording(
     """
     if not isinstance(recording, Recording):
         raise TypeError(f"recording must be a vfjax.Recording, got {type(recording).__name__}")
-    model = initial_model(recording) if model is None else model
-    params = first_fit_parameters(recording, model) if params is None else tuple(params)
-    box = {**first_fit_bounds(model, params), **(bounds or {})}
-    result = fit(model, recording, params, bounds=box, restarts=restarts, **options)
-    if not _to_settle(settle, options, [result], [recording]):
-        return result
-    options = {**options, "warmup": SETTLING_WARMUP}
-    again = fit(model, recording, params, bounds=box, restarts=restarts, **options)
-    return _settled_or_first(result, again)
+    for name in ("hold", "min_batch"):
+        if name in options:
+            raise TypeError(f"fit_recording takes no {name!r} (that is fit_many's, for batches)")
+    models = None if model is None else [model]
+    return fit_recordings(
+        [recording], models, params, restarts=restarts, bounds=bounds, settle=settle, **options
+    )[0]
 
 
 def _settled_or_first(first: FitResult, again: FitResult) -> FitResult:
