@@ -298,6 +298,25 @@ def test_cli_interrupt_exits_130_without_a_traceback(tmp_path):
     assert not list(tmp_path.glob(".out.partial-*"))
 
 
+def _ctrl_c_when_ready(script, folder, check=None):
+    """Run the Python ``script`` in ``folder``, press Ctrl-C once it prints "ready" (after
+    ``check()``, if given, holds), and return its exit code, its stderr and the seconds it
+    took to end after the Ctrl-C."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script],
+        cwd=folder,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout.readline().strip() == "ready"
+    assert check is None or check()
+    start = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    return proc.returncode, err, time.monotonic() - start
+
+
 def test_a_swallowed_interrupt_still_ends_the_run_and_its_staged_output(tmp_path):
     """A Ctrl-C whose KeyboardInterrupt a library catches (or that lands in a finaliser) is
     not lost: the command line's handler ends the process after its grace period, with the
@@ -322,20 +341,10 @@ def test_a_swallowed_interrupt_still_ends_the_run_and_its_staged_output(tmp_path
                     pass  # swallowed
         """
     )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    code, err, waited = _ctrl_c_when_ready(
+        script, tmp_path, lambda: list(tmp_path.glob(".out.partial-*"))
     )
-    assert proc.stdout.readline().strip() == "ready"
-    assert list(tmp_path.glob(".out.partial-*"))
-    start = time.monotonic()
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=30)
-    waited = time.monotonic() - start
-    assert proc.returncode == 130, err
+    assert code == 130, err
     assert err.strip().splitlines()[-1] == "vfjax: interrupted; the output folder is left as it was"
     assert 2.0 < waited < 20.0, waited  # the grace period (3 s), not a hang
     assert not (tmp_path / "out").exists()
@@ -363,17 +372,8 @@ def test_an_interrupt_a_library_turns_into_an_error_is_still_an_interrupt(tmp_pa
         raise SystemExit(cli.main(["--no-cache", "simulate", "N1", "-o", "gaw.csv"]))
         """
     )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", script],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    assert proc.stdout.readline().strip() == "ready"
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=30)
-    assert proc.returncode == 130, err
+    code, err, _ = _ctrl_c_when_ready(script, tmp_path)
+    assert code == 130, err
     assert "Invalid bounding box" not in err and "Traceback" not in err
     assert err.strip().splitlines()[-1] == "vfjax: interrupted; the output folder is left as it was"
 
