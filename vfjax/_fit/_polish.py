@@ -27,13 +27,10 @@ def jacobian_columns(fn, y, basis):
     return jax.vmap(lambda t: jax.jvp(fn, (y,), (t,)), out_axes=(None, 1))(basis)
 
 
-#: Each step's trial dampings, as multiples of the current one (three decades): near a grazing
+#: Each step's trial dampings, as multiples of the current one (six decades): near a grazing
 #: closure, where one more or one fewer cycle reaches contact, a Gauss-Newton step is good only
 #: within a small region, and one trial per step can spend every step shrinking towards it.
-#: Two trials cost half of four (each is a simulation, beside the Jacobian); run side by side
-#: with four over six decades on 11 recordings of the injection-recovery benchmark, they give
-#: the same or better verdicts on every one, 10-25 % faster (benchmarks/README.md).
-_DAMPING_TRIALS = (1e-2, 1e1)
+_DAMPING_TRIALS = (1e-3, 1e-1, 1e1, 1e3)
 _DAMPING_RISE = 1e4  # after a step that no trial improves
 
 
@@ -52,8 +49,8 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and
     the solve traces anywhere (inside `jax.shard_map` too). Each step: the Jacobian's
     columns by forward mode (one batched jvp, which also gives the residual) and damped
-    Gauss-Newton steps with Marquardt's scaling at two dampings three decades apart about
-    the current one (`_DAMPING_TRIALS`), evaluated one after the other; the best one
+    Gauss-Newton steps with Marquardt's scaling at four dampings spread over six decades
+    about the current one (`_DAMPING_TRIALS`), evaluated one after the other; the best one
     is taken if it improves, and its damping becomes the current one; if none improves, the
     damping rises by `_DAMPING_RISE`. The Jacobian costs most of a step.
 
