@@ -508,3 +508,13 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     closing = vfjax.settling(fitted, slow)
     assert closing.noise_nmse == closing.fit_nmse and closing.settled, closing
     assert closing.nmse == pytest.approx(closing.fit_nmse, rel=0.05)
+
+
+def test_one_recording_fits_refuse_the_batch_options():
+    """`fit` and `fit_recording` fit one recording: `fit_many`'s ``hold`` and ``min_batch``
+    are refused by name, before anything is fitted."""
+    rec = _recording(vfjax.preset("N1"), t_start=0.03)
+    for one, args in ((fit, (vfjax.preset("N1"), rec)), (vfjax.fit_recording, (rec,))):
+        for name in ("hold", "min_batch"):
+            with pytest.raises(TypeError, match=f"takes no '{name}'"):
+                one(*args, **{name: 2})

@@ -617,7 +617,13 @@ def fit(
     compiled programs; see there. `vfjax.fit_recording` is a recording's first fit (P_s
     searched, a wider box, restarts).
     """
+    refuse_batch_options("fit", options)
+    return fit_many(model, [recording], params, **options)[0]
+
+
+def refuse_batch_options(caller: str, options: dict) -> None:
+    """A TypeError if ``options`` of a one-recording fit (``caller``) hold one of
+    `fit_many`'s batch options (``hold``, ``min_batch``)."""
     for name in ("hold", "min_batch"):
         if name in options:
-            raise TypeError(f"fit takes no {name!r} (that is fit_many's, for batches)")
-    return fit_many(model, [recording], params, **options)[0]
+            raise TypeError(f"{caller} takes no {name!r} (that is fit_many's, for batches)")

@@ -26,7 +26,7 @@ from jaxtyping import Array
 from ..model import VocalFoldModel
 from ..presets import PRESSURE_KEY, initial_model
 from ..recording import Recording
-from ._engine import fit_many
+from ._engine import fit_many, refuse_batch_options
 from ._problem import plausible_range
 from ._result import FitResult
 from ._settling import SETTLING_WARMUP, settling
@@ -106,9 +106,7 @@ def fit_recording(
     """
     if not isinstance(recording, Recording):
         raise TypeError(f"recording must be a vfjax.Recording, got {type(recording).__name__}")
-    for name in ("hold", "min_batch"):
-        if name in options:
-            raise TypeError(f"fit_recording takes no {name!r} (that is fit_many's, for batches)")
+    refuse_batch_options("fit_recording", options)
     models = None if model is None else [model]
     return fit_recordings(
         [recording], models, params, restarts=restarts, bounds=bounds, settle=settle, **options
