@@ -324,10 +324,10 @@ def test_a_swallowed_interrupt_still_ends_the_run_and_its_staged_output(tmp_path
     script = textwrap.dedent(
         """
         import signal, time
-        from vfjax.cli import _interrupt_handler
+        from vfjax.cli import _InterruptHandler
         from vfjax.io import staged_output
 
-        signal.signal(signal.SIGINT, _interrupt_handler(["out"]))
+        signal.signal(signal.SIGINT, _InterruptHandler(["out"]))
         with staged_output("out") as stage:
             (stage / "half.txt").write_text("written")
             ready = False

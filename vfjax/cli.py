@@ -676,24 +676,25 @@ def _exit_interrupted(outputs) -> None:
     os._exit(130)
 
 
-def _interrupt_handler(outputs):
+class _InterruptHandler:
     """A SIGINT handler: the first Ctrl-C raises KeyboardInterrupt (the outputs' context
     managers clean up as the stack unwinds) and arms a timer that ends the process after
     `INTERRUPT_GRACE_S` if it is still running (a KeyboardInterrupt raised inside a
-    finaliser or a library's callback is lost); a second Ctrl-C ends it at once."""
-    pressed = []
+    finaliser or a library's callback is lost); a second Ctrl-C ends it at once.
+    ``pressed`` says whether Ctrl-C was pressed during the run."""
 
-    def handler(signum, frame):
-        if pressed:
-            _exit_interrupted(outputs)
-        pressed.append(signum)
-        timer = threading.Timer(INTERRUPT_GRACE_S, _exit_interrupted, args=(outputs,))
+    def __init__(self, outputs):
+        self.outputs = outputs
+        self.pressed = False
+
+    def __call__(self, signum, frame):
+        if self.pressed:
+            _exit_interrupted(self.outputs)
+        self.pressed = True
+        timer = threading.Timer(INTERRUPT_GRACE_S, _exit_interrupted, args=(self.outputs,))
         timer.daemon = True
         timer.start()
         raise KeyboardInterrupt
-
-    handler.pressed = pressed
-    return handler
 
 
 def _unraisable_hook(outputs, fallback):
@@ -731,7 +732,7 @@ def main(argv=None) -> int:
     outputs = [p for p in (getattr(args, n, None) for n in ("out", "output")) if p]
     previous = None
     previous_hook = sys.unraisablehook
-    handler = _interrupt_handler(outputs)
+    handler = _InterruptHandler(outputs)
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGINT, handler)
         sys.unraisablehook = _unraisable_hook(outputs, previous_hook)
