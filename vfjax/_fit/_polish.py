@@ -27,12 +27,12 @@ def jacobian_columns(fn, y, basis):
     return jax.vmap(lambda t: jax.jvp(fn, (y,), (t,)), out_axes=(None, 1))(basis)
 
 
-#: Each step's trial dampings, as multiples of the current one (three decades apart): near a
+#: Each step's trial dampings, as multiples of the current one (five decades apart): near a
 #: grazing closure, where one more or one fewer cycle reaches contact, a Gauss-Newton step is
 #: good only within a small region, and one trial per step can spend every step shrinking
 #: towards it; each trial costs a simulation beside the step's Jacobian.
-_DAMPING_TRIALS = (1e-2, 1e1)
-_DAMPING_START = 1.0  # the first step tries 1e-2 and 10
+_DAMPING_TRIALS = (1e-4, 1e1)
+_DAMPING_START = 1.0  # the first step tries 1e-4 and 10
 _DAMPING_RISE = 1e4  # after a step that no trial improves
 
 
@@ -51,13 +51,14 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and
     the solve traces anywhere (inside `jax.shard_map` too). Each step: the Jacobian's
     columns by forward mode (one batched jvp, which also gives the residual) and damped
-    Gauss-Newton steps with Marquardt's scaling at two dampings three decades apart about
-    the current one (`_DAMPING_TRIALS`: a hundredth and ten times it; the first step tries
-    1e-2 and 10), evaluated one after the other; the better one is taken if it improves, and
+    Gauss-Newton steps with Marquardt's scaling at two dampings five decades apart about
+    the current one (`_DAMPING_TRIALS`: 1e-4 and ten times it; the first step tries 1e-4
+    and 10), evaluated one after the other; the better one is taken if it improves, and
     its damping becomes the current one; if neither improves, the damping rises by
     `_DAMPING_RISE`. The Jacobian costs most of a step. The first step's damping of 10
     steps short of a jump that a nearly undamped step crosses (a grazing closure: one more
-    cycle reaching contact), and the next steps can drop the damping a hundredfold each.
+    cycle reaching contact); the smaller trial, nearly Gauss-Newton, lets every step go
+    far along a flat valley of the error.
 
     The trials run in a `lax.map`, not a `vmap`: vmapped, the statistic's program split
     over two CPU devices (`jax.shard_map`) hung (jax 0.10.2: the first call on the shared
