@@ -52,8 +52,8 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     the solve traces anywhere (inside `jax.shard_map` too). Each step: the Jacobian's
     columns by forward mode (one batched jvp, which also gives the residual) and damped
     Gauss-Newton steps with Marquardt's scaling at two dampings five decades apart about
-    the current one (`_DAMPING_TRIALS`: 1e-4 and ten times it; the first step tries 1e-4
-    and 10), evaluated one after the other; the better one is taken if it improves, and
+    the current one (`_DAMPING_TRIALS`: 1e-4 times it and 10 times it; the first step
+    tries 1e-4 and 10), evaluated one after the other; the better one is taken if it improves, and
     its damping becomes the current one; if neither improves, the damping rises by
     `_DAMPING_RISE`. The Jacobian costs most of a step. The first step's damping of 10
     steps short of a jump that a nearly undamped step crosses (a grazing closure: one more
