@@ -86,8 +86,9 @@ def cases():
     return sorted(out, key=lambda c: c[5])  # seed by seed (a stable sort)
 
 
-def make_recording(subject, effect, strength, noise, seed):
-    """The recording of one case, and the true model (None without an effect)."""
+def make_recording(subject, effect, strength, noise, seed, warmup=None):
+    """The recording of one case, and the true model (None without an effect). ``warmup``:
+    simulated time before its first frame (s; None: `demo_recording`'s)."""
     model = vfjax.preset(subject)
     term = None
     if effect is not None:
@@ -98,9 +99,13 @@ def make_recording(subject, effect, strength, noise, seed):
         np.asarray(vfjax.simulate(model, FPS, 400, t_start=0.05).area), FPS
     )
     period = 1.0 / f0
-    jittered = model.with_term(vfjax.TimingJitter.random(TIMING_SD, period, seed=seed + 11))
+    # the factors cover the recording's cycles (the same first draws for any warm-up)
+    covered = max(0.2, (warmup or 0.0) + N_FRAMES / FPS + period)
+    jittered = model.with_term(
+        vfjax.TimingJitter.random(TIMING_SD, period, duration=covered, seed=seed + 11)
+    )
     jittered = jittered.with_term(
-        vfjax.AmplitudeJitter.random(AMPLITUDE_SD, period, seed=seed + 23)
+        vfjax.AmplitudeJitter.random(AMPLITUDE_SD, period, duration=covered, seed=seed + 23)
     )
     rec = demo_recording(
         subject,
@@ -110,6 +115,7 @@ def make_recording(subject, effect, strength, noise, seed):
         n_frames=N_FRAMES,
         jitter=CLOSURE_JITTER,
         model=jittered,
+        warmup=warmup,
     )
     return rec, (model if term is not None else None)
 
@@ -144,10 +150,10 @@ def _commit() -> str:
 COMMIT = _commit()
 
 
-def run_case(case, calibration=None) -> dict:
+def run_case(case, calibration=None, warmup=None) -> dict:
     key, subject, effect, strength, noise, seed = case
     calibration = calibration or vfjax.Calibration()
-    rec, truth = make_recording(subject, effect, strength, noise, seed)
+    rec, truth = make_recording(subject, effect, strength, noise, seed, warmup)
     t0 = time.perf_counter()
     first = vfjax.fit_recording(rec, progress=False)
     d = vfjax.diagnose(first, rec, calibration=calibration)
@@ -166,6 +172,7 @@ def run_case(case, calibration=None) -> dict:
         "p_values": {n: f.p_value for n, f in d.refits.items()},
         "replicates": d.calibrated.replicates if d.calibrated is not None else None,
         "pool": calibration.pool,
+        "warmup": warmup,
     }
     if effect is not None:
         name, values, _ = EFFECTS[effect]
@@ -240,6 +247,12 @@ def main():
     ap.add_argument(
         "--pool", type=int, default=0, help="vfjax.Calibration's pool (default 0: none)"
     )
+    ap.add_argument(
+        "--warmup",
+        type=float,
+        help="simulated time before each recording's first frame, s (default: "
+        "vfjax.datasets.demo_recording's, 7.7 ms after the model's default warm-up)",
+    )
     args = ap.parse_args()
     use_cpu_cores(None)
     out = pathlib.Path(args.out)
@@ -253,7 +266,7 @@ def main():
     if args.strength:
         todo = [c for c in todo if c[3] is None or STRENGTHS[c[3]] == args.strength]
     for case in todo[: args.limit]:
-        row = run_case(case, vfjax.Calibration(pool=args.pool))
+        row = run_case(case, vfjax.Calibration(pool=args.pool), args.warmup)
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")
         rows.append(row)

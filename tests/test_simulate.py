@@ -226,3 +226,18 @@ def test_a_sampling_object_samples_as_its_fields():
         vfjax.simulate(m, s, 120)
     with pytest.raises(TypeError, match="give n_frames"):
         vfjax.simulate(m, 5000.0)
+
+
+def test_a_demo_recording_starts_at_its_warmup():
+    """`demo_recording(warmup=w)` samples the model from w seconds after the onset: without
+    noise its GAW is the simulation from t_start = w, rounded to whole pixels; the default
+    starts 7.7 ms after the model's default warm-up; a negative warm-up is refused."""
+    from vfjax.datasets import demo_recording
+
+    model = vfjax.preset("N1")
+    for warmup, t_start in ((None, vfjax.default_warmup(model) + 0.0077), (0.3, 0.3)):
+        rec = demo_recording("N1", noise_px=0.0, n_frames=120, warmup=warmup)
+        sim = np.asarray(vfjax.simulate(model, 4000.0, 120, t_start=t_start).area)
+        np.testing.assert_array_equal(rec.area, np.clip(np.round(sim), 0.0, None))
+    with pytest.raises(ValueError, match="warmup"):
+        demo_recording("N1", warmup=-0.1)

@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 
 from ._fit import default_warmup
+from ._validate import check_nonnegative
 from .descriptors import fundamental_frequency
 from .integrator import simulate, simulated_fold_areas
 from .model import VocalFoldModel
@@ -24,6 +25,7 @@ def demo_recording(
     name_suffix: str = "",
     jitter: float = 0.0,
     model: VocalFoldModel | None = None,
+    warmup: float | None = None,
 ) -> Recording:
     """A GAW of the paper's subject ``name`` simulated by vfjax, as a camera would see it.
 
@@ -47,14 +49,23 @@ def demo_recording(
             duration per cycle (`ClosureJitter`), e.g. 0.003.
         model: the model to simulate instead of the preset (its subject's sex is taken
             from ``name``).
+        warmup: simulated time before the first frame (s); None: 7.7 ms after the model's
+            `default_warmup`. A later start records a model that settles slowly (a cubic
+            stiffness: its amplitude still drifts 0.8 s after the onset) in sustained
+            phonation rather than in its start-up.
     """
     model = preset(name) if model is None else model
     if effect is not None:
         model = model.with_effect(effect)
+    t_start = default_warmup(model) + 0.0077 if warmup is None else float(warmup)
+    check_nonnegative("warmup", t_start, "s")
     if jitter > 0 and model.closure_duration is not None:
         f0 = fundamental_frequency(np.asarray(simulate(model, fps, 400, t_start=0.02).area), fps)
-        model = model.with_term(ClosureJitter.random(jitter, 1.0 / f0, seed=seed + 1))
-    sim = simulate(model, fps, n_frames, t_start=default_warmup(model) + 0.0077)
+        covered = max(0.2, t_start + n_frames / fps + 1.0 / f0)  # the recording's cycles
+        model = model.with_term(
+            ClosureJitter.random(jitter, 1.0 / f0, duration=covered, seed=seed + 1)
+        )
+    sim = simulate(model, fps, n_frames, t_start=t_start)
     rng = np.random.default_rng(seed)
     area = np.asarray(sim.area) + rng.normal(0.0, noise_px, n_frames)
     area = np.clip(np.round(area), 0.0, None)
