@@ -122,8 +122,9 @@ def make_recording(subject, effect, strength, noise, seed, warmup=None):
 
 def oracle_fall(truth, rec, first, effect: str, warmup=None) -> float:
     """Share of the first fit's error that the true structure, polished from its true values
-    (the first fit's parameters and the effect's), removes: in the first fit's sampling, or
-    from the recording's own start where ``warmup`` (s) gives it."""
+    (the first fit's parameters and the effect's), removes: after the true model's default
+    warm-up (its time shift fitted), or from the recording's own start where ``warmup`` (s)
+    gives it."""
     kind = getattr(vfjax, effect)
     params = tuple(first.params) + tuple(n for n in kind.parameters if n not in first.params)
     start = {} if warmup is None else {"warmup": warmup}
@@ -261,6 +262,10 @@ def main():
     use_cpu_cores(None)
     out = pathlib.Path(args.out)
     rows = [json.loads(x) for x in out.read_text().splitlines() if x] if out.exists() else []
+    other = {r.get("warmup") for r in rows} - {args.warmup}
+    if other:
+        held = sorted(other, key=str)
+        ap.error(f"{out} holds recordings of another --warmup ({held}): use another --out")
     done = {r["key"] for r in rows}
     todo = [c for c in cases() if c[0] not in done]
     if args.only:
