@@ -39,7 +39,7 @@ import numpy as np
 
 import vfjax
 from vfjax.cli import use_cpu_cores
-from vfjax.datasets import demo_recording
+from vfjax.datasets import demo_recording, demo_span, factors_duration
 
 FPS = 4000.0
 N_FRAMES = 201
@@ -99,8 +99,8 @@ def make_recording(subject, effect, strength, noise, seed, warmup=None):
         np.asarray(vfjax.simulate(model, FPS, 400, t_start=0.05).area), FPS
     )
     period = 1.0 / f0
-    # the factors cover the recording's cycles (the same first draws for any warm-up)
-    covered = max(0.2, (warmup or 0.0) + N_FRAMES / FPS + period)
+    _, end = demo_span(model, FPS, N_FRAMES, warmup)
+    covered = factors_duration(end, period)  # the recording's cycles
     jittered = model.with_term(
         vfjax.TimingJitter.random(TIMING_SD, period, duration=covered, seed=seed + 11)
     )

@@ -14,6 +14,25 @@ from .recording import Recording
 from .terms import AbstractTerm
 from .terms.variability import ClosureJitter
 
+#: The seconds a per-cycle variability term (`ClosureJitter` and its kin) covers at least.
+_FACTORS_COVER = 0.2
+
+
+def demo_span(model: VocalFoldModel, fps: float, n_frames: int, warmup: float | None = None):
+    """When `demo_recording` samples ``model``: (first frame, end of the last frame), s after
+    the onset. ``fps``: frame rate (Hz); ``n_frames``: frames; ``warmup``: as there (None:
+    7.7 ms after the model's `default_warmup`)."""
+    start = default_warmup(model) + 0.0077 if warmup is None else float(warmup)
+    check_nonnegative("warmup", start, "s")
+    return start, start + n_frames / fps
+
+
+def factors_duration(end: float, period: float) -> float:
+    """The seconds that per-cycle factors (``random(..., duration=)`` of the variability
+    terms) must cover for a recording ending ``end`` s after the onset, cycles of ``period``
+    s: at least the terms' default (their first draws are the same for any duration)."""
+    return max(_FACTORS_COVER, end + period)
+
 
 def demo_recording(
     name: str = "N3",
@@ -57,11 +76,10 @@ def demo_recording(
     model = preset(name) if model is None else model
     if effect is not None:
         model = model.with_effect(effect)
-    t_start = default_warmup(model) + 0.0077 if warmup is None else float(warmup)
-    check_nonnegative("warmup", t_start, "s")
+    t_start, end = demo_span(model, fps, n_frames, warmup)
     if jitter > 0 and model.closure_duration is not None:
         f0 = fundamental_frequency(np.asarray(simulate(model, fps, 400, t_start=0.02).area), fps)
-        covered = max(0.2, t_start + n_frames / fps + 1.0 / f0)  # the recording's cycles
+        covered = factors_duration(end, 1.0 / f0)
         model = model.with_term(
             ClosureJitter.random(jitter, 1.0 / f0, duration=covered, seed=seed + 1)
         )
