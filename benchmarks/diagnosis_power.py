@@ -1,14 +1,15 @@
 """Injection-recovery: how often the calibrated diagnosis finds an effect hidden in a
 recording, and how often it flags one that is not there.
 
-Recordings made by vfjax (201 frames at 4 kHz, rounded to whole pixels and clipped at 0):
-the paper's model for a male (N1) and a female (N3) subject, with realistic cycle-to-cycle
-variability (timing offsets of 30 us and amplitude factors of 2 % standard deviation per
-cycle, `TimingJitter` and `AmplitudeJitter`, and closure-duration jitter of 0.3 %,
-`ClosureJitter`) and white noise of 1 or 3 px; each catalogue effect at three strengths
-(the weakest near the detection limit), three seeds each, and recordings with no effect
-(ten seeds per subject and noise). Each is fitted as the command line does
-(`vfjax.fit_recording`) and diagnosed with the defaults (`vfjax.diagnose`).
+Recordings made by vfjax (201 frames at 4 kHz, rounded to whole pixels and clipped at 0) in
+sustained phonation (from 0.5 s after the onset, `--warmup`, where every effect's oscillation
+has settled): the paper's model for a male (N1) and a female (N3) subject, with realistic
+cycle-to-cycle variability (timing offsets of 30 us and amplitude factors of 2 % standard
+deviation per cycle, `TimingJitter` and `AmplitudeJitter`, and closure-duration jitter of
+0.3 %, `ClosureJitter`) and white noise of 1 or 3 px; each catalogue effect at three strengths
+(chosen by the oracle below, `--oracle`: the weakest near the detection limit), three seeds
+each, and recordings with no effect (ten seeds per subject and noise). Each is fitted as the
+command line does (`vfjax.fit_recording`) and diagnosed with the defaults (`vfjax.diagnose`).
 
 Per effect and strength: the detection rate (the true effect is needed), how often the true
 effect ranks first among the needed ones, the recovered value over the truth (the gap's area
@@ -24,8 +25,12 @@ JSON-lines file (``--out``) as soon as it is done; a rerun skips what is there a
 table from all of it. Recordings run seed by seed (every effect, strength, subject and noise
 of seed 0 first), so that a partial run covers every case alike.
 
+``--oracle`` measures what chooses the strengths instead: the oracle fall of every effect at
+each size of `ORACLE_SIZES`, both subjects and noises, seed 0, and prints its table (its own
+results file, ``diagnosis_oracle.jsonl`` by default).
+
 Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none]
-[--strength weak|medium|strong] [--seed S] [--limit N] [--pool N]
+[--strength weak|medium|strong] [--seed S] [--limit N] [--pool N] [--warmup S] [--oracle]
 """
 
 import argparse
@@ -50,18 +55,35 @@ NULL_SEEDS = tuple(range(10))
 TIMING_SD = 30e-6  # s
 AMPLITUDE_SD = 0.02
 CLOSURE_JITTER = 0.003
-#: effect -> (parameter, weak, medium, strong, how to build it). The weakest is near the
-#: detection limit: a modulation of +-5 % at 8 Hz, a third of its cycle in 201 frames, is
-#: found in about half of the recordings.
+#: Simulated time before a recording's first frame (s): sustained phonation. Every effect's
+#: oscillation has settled by then; a cubic stiffness's amplitude drifts for more than 0.2 s.
+WARMUP = 0.5
+#: effect -> (parameter, weak, medium, strong, how to build it). Chosen by the oracle fall
+#: (`--oracle`, benchmarks/README.md): the weak strength removes a tenth to a third of the
+#: first fit's error (median over subjects and noises), the medium about half or more
+#: where the effect can show in 50 ms. A settled cubic stiffness is mostly absorbed by K
+#: (its oracle stays under a third up to eta 12 000), and a pressure modulation on N3 is
+#: invisible below a depth of 0.2.
 EFFECTS = {
     "GlottalGap": ("a_gap", (0.001, 0.003, 0.008), lambda v, s: vfjax.GlottalGap(a_gap=v)),
-    "CubicStiffness": ("eta", (500.0, 1500.0, 3000.0), lambda v, s: vfjax.CubicStiffness(eta=v)),
+    "CubicStiffness": (
+        "eta",
+        (3000.0, 6000.0, 12000.0),
+        lambda v, s: vfjax.CubicStiffness(eta=v),
+    ),
     "PressureModulation": (
         "a_pm",
-        (0.05, 0.1, 0.2),
+        (0.1, 0.2, 0.4),
         lambda v, s: vfjax.PressureModulation(a_pm=v, f_m=8.0, phi=-2.0 + 1.7 * s),
     ),
-    "MucosalDelay": ("tau", (1e-4, 2e-4, 4e-4), lambda v, s: vfjax.MucosalDelay(tau=v)),
+    "MucosalDelay": ("tau", (2e-4, 4e-4, 8e-4), lambda v, s: vfjax.MucosalDelay(tau=v)),
+}
+#: The sizes the oracle sweep (`--oracle`) measures, per effect.
+ORACLE_SIZES = {
+    "GlottalGap": (0.001, 0.003, 0.008, 0.02),
+    "CubicStiffness": (1500.0, 3000.0, 6000.0, 12000.0),
+    "PressureModulation": (0.05, 0.1, 0.2, 0.4),
+    "MucosalDelay": (1e-4, 2e-4, 4e-4, 8e-4),
 }
 STRENGTHS = ("weak", "medium", "strong")
 #: Effects whose size the GAW fixes only times another parameter (the camera scale S, px per
@@ -86,14 +108,15 @@ def cases():
     return sorted(out, key=lambda c: c[5])  # seed by seed (a stable sort)
 
 
-def make_recording(subject, effect, strength, noise, seed, warmup=None):
-    """The recording of one case, and the true model (None without an effect). ``warmup``:
-    simulated time before its first frame (s; None: `demo_recording`'s)."""
+def make_recording(subject, effect, size, noise, seed, warmup=WARMUP):
+    """The recording of one case, and the true model (None without an effect). ``size``: the
+    effect's parameter (`EFFECTS`); ``warmup``: simulated time before its first frame (s;
+    None: `demo_recording`'s, a start-up)."""
     model = vfjax.preset(subject)
     term = None
     if effect is not None:
-        _, values, build = EFFECTS[effect]
-        term = build(values[strength], seed)
+        _, _, build = EFFECTS[effect]
+        term = build(size, seed)
         model = model.with_effect(term)
     f0 = vfjax.descriptors.fundamental_frequency(
         np.asarray(vfjax.simulate(model, FPS, 400, t_start=0.05).area), FPS
@@ -120,7 +143,7 @@ def make_recording(subject, effect, strength, noise, seed, warmup=None):
     return rec, (model if term is not None else None)
 
 
-def oracle_fall(truth, rec, first, effect: str, warmup=None) -> float:
+def oracle_fall(truth, rec, first, effect: str, warmup=WARMUP) -> float:
     """Share of the first fit's error that the true structure, polished from its true values
     (the first fit's parameters and the effect's), removes: after the true model's default
     warm-up (its time shift fitted), or from the recording's own start where ``warmup`` (s)
@@ -155,10 +178,11 @@ def _commit() -> str:
 COMMIT = _commit()
 
 
-def run_case(case, calibration=None, warmup=None) -> dict:
+def run_case(case, calibration=None, warmup=WARMUP) -> dict:
     key, subject, effect, strength, noise, seed = case
     calibration = calibration or vfjax.Calibration()
-    rec, truth = make_recording(subject, effect, strength, noise, seed, warmup)
+    size = None if effect is None else EFFECTS[effect][1][strength]
+    rec, truth = make_recording(subject, effect, size, noise, seed, warmup)
     t0 = time.perf_counter()
     first = vfjax.fit_recording(rec, progress=False)
     d = vfjax.diagnose(first, rec, calibration=calibration)
@@ -242,6 +266,43 @@ def summary(rows):
             )
 
 
+def oracle_sweep(out: pathlib.Path, warmup=WARMUP):
+    """The oracle fall of every effect at each size of `ORACLE_SIZES`, on both subjects and
+    noises (seed 0), appended to ``out`` as it goes (resumable); prints the table."""
+    rows = [json.loads(x) for x in out.read_text().splitlines() if x] if out.exists() else []
+    if {r.get("warmup") for r in rows} - {warmup}:
+        raise SystemExit(f"{out} holds another --warmup's sweep: use another --out")
+    done = {r["key"] for r in rows}
+    for effect, sizes in ORACLE_SIZES.items():
+        for size in sizes:
+            for subject in SUBJECTS:
+                for noise in NOISE_PX:
+                    key = f"{effect}/{size:g}/{subject}/{noise:g}px"
+                    if key in done:
+                        continue
+                    rec, truth = make_recording(subject, effect, size, noise, 0, warmup)
+                    first = vfjax.fit_recording(rec, progress=False)
+                    fall = oracle_fall(truth, rec, first, effect, warmup)
+                    row = {"key": key, "effect": effect, "size": size, "subject": subject}
+                    row.update(noise_px=noise, first_nmse=first.nmse, oracle_fall=fall)
+                    row.update(warmup=warmup, commit=COMMIT)
+                    with out.open("a") as f:
+                        f.write(json.dumps(row) + "\n")
+                    rows.append(row)
+                    print(f"{key}: oracle fall {fall:.1%}", flush=True)
+    print("effect              size     oracle fall: N1 1 px, N1 3 px, N3 1 px, N3 3 px  (median)")
+    for effect, sizes in ORACLE_SIZES.items():
+        for size in sizes:
+            got = {
+                (r["subject"], r["noise_px"]): r["oracle_fall"]
+                for r in rows
+                if r["effect"] == effect and r["size"] == size
+            }
+            falls = [got.get((s, n), math.nan) for s in SUBJECTS for n in NOISE_PX]
+            cells = "  ".join(f"{f:6.1%}" for f in falls)
+            print(f"{effect:19s} {size:<8g} {cells}  ({np.median(falls):.0%})")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="diagnosis_power.jsonl", help="JSON-lines results file")
@@ -255,11 +316,22 @@ def main():
     ap.add_argument(
         "--warmup",
         type=float,
-        help="simulated time before each recording's first frame, s (default: "
-        "vfjax.datasets.demo_recording's, 7.7 ms after the model's default warm-up)",
+        default=WARMUP,
+        help=f"simulated time before each recording's first frame, s (default {WARMUP}: "
+        "sustained phonation; 0.0277 is vfjax.datasets.demo_recording's start-up)",
+    )
+    ap.add_argument(
+        "--oracle",
+        action="store_true",
+        help="measure the oracle fall of every effect at the sizes of ORACLE_SIZES instead "
+        "(--out default diagnosis_oracle.jsonl)",
     )
     args = ap.parse_args()
     use_cpu_cores(None)
+    if args.oracle:
+        given = args.out != ap.get_default("out")
+        oracle_sweep(pathlib.Path(args.out if given else "diagnosis_oracle.jsonl"), args.warmup)
+        return
     out = pathlib.Path(args.out)
     rows = [json.loads(x) for x in out.read_text().splitlines() if x] if out.exists() else []
     other = {r.get("warmup") for r in rows} - {args.warmup}
