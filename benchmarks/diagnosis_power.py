@@ -266,12 +266,20 @@ def summary(rows):
             )
 
 
-def oracle_sweep(out: pathlib.Path, warmup=WARMUP):
-    """The oracle fall of every effect at each size of `ORACLE_SIZES`, on both subjects and
-    noises (seed 0), appended to ``out`` as it goes (resumable); prints the table."""
+def read_rows(out: pathlib.Path, warmup) -> list[dict]:
+    """The rows of a JSON-lines results file (none where it is missing); ValueError where it
+    holds rows of another warm-up (s), which a run must not mix or skip as done."""
     rows = [json.loads(x) for x in out.read_text().splitlines() if x] if out.exists() else []
-    if {r.get("warmup") for r in rows} - {warmup}:
-        raise SystemExit(f"{out} holds another --warmup's sweep: use another --out")
+    other = {r.get("warmup") for r in rows} - {warmup}
+    if other:
+        held = sorted(other, key=str)
+        raise ValueError(f"{out} holds rows of another --warmup ({held}): use another --out")
+    return rows
+
+
+def oracle_sweep(out: pathlib.Path, rows: list[dict], warmup=WARMUP):
+    """The oracle fall of every effect at each size of `ORACLE_SIZES`, on both subjects and
+    noises (seed 0), appended to ``out`` (holding ``rows``) as it goes; prints the table."""
     done = {r["key"] for r in rows}
     for effect, sizes in ORACLE_SIZES.items():
         for size in sizes:
@@ -305,7 +313,11 @@ def oracle_sweep(out: pathlib.Path, warmup=WARMUP):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="diagnosis_power.jsonl", help="JSON-lines results file")
+    ap.add_argument(
+        "--out",
+        help="JSON-lines results file (default diagnosis_power.jsonl, with --oracle "
+        "diagnosis_oracle.jsonl)",
+    )
     ap.add_argument("--only", help="one effect's cases, or 'none' for the no-effect ones")
     ap.add_argument("--strength", choices=STRENGTHS, help="only this strength of the effects")
     ap.add_argument("--seed", type=int, help="only this seed's recordings")
@@ -318,26 +330,25 @@ def main():
         type=float,
         default=WARMUP,
         help=f"simulated time before each recording's first frame, s (default {WARMUP}: "
-        "sustained phonation; 0.0277 is vfjax.datasets.demo_recording's start-up)",
+        "sustained phonation; vfjax.datasets.demo_recording starts 7.7 ms after the "
+        "model's default warm-up, 0.0277 s for most effects: a start-up)",
     )
     ap.add_argument(
         "--oracle",
         action="store_true",
-        help="measure the oracle fall of every effect at the sizes of ORACLE_SIZES instead "
-        "(--out default diagnosis_oracle.jsonl)",
+        help="measure the oracle fall of every effect at the sizes of ORACLE_SIZES instead",
     )
     args = ap.parse_args()
     use_cpu_cores(None)
+    default = "diagnosis_oracle.jsonl" if args.oracle else "diagnosis_power.jsonl"
+    out = pathlib.Path(args.out or default)
+    try:
+        rows = read_rows(out, args.warmup)
+    except ValueError as e:
+        ap.error(str(e))
     if args.oracle:
-        given = args.out != ap.get_default("out")
-        oracle_sweep(pathlib.Path(args.out if given else "diagnosis_oracle.jsonl"), args.warmup)
+        oracle_sweep(out, rows, args.warmup)
         return
-    out = pathlib.Path(args.out)
-    rows = [json.loads(x) for x in out.read_text().splitlines() if x] if out.exists() else []
-    other = {r.get("warmup") for r in rows} - {args.warmup}
-    if other:
-        held = sorted(other, key=str)
-        ap.error(f"{out} holds recordings of another --warmup ({held}): use another --out")
     done = {r["key"] for r in rows}
     todo = [c for c in cases() if c[0] not in done]
     if args.only:
