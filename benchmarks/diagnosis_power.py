@@ -197,6 +197,8 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         "commit": COMMIT,
         "first_nmse": first.nmse,
         "needed": d.needed,
+        "unconfirmed": d.unconfirmed,
+        "search_p_values": {n: f.search_p_value for n, f in d.refits.items()},
         "ranking": d.ranking,
         "p_values": {n: f.p_value for n, f in d.refits.items()},
         "replicates": d.calibrated.replicates if d.calibrated is not None else None,
@@ -228,9 +230,14 @@ def summary(rows):
     if nulls:
         alarms = sum(bool(r["needed"]) for r in nulls)
         print(f"no effect: false alarms {alarms}/{len(nulls)} ({alarms / len(nulls):.0%})")
+        told = [r for r in nulls if "unconfirmed" in r]
+        if told:
+            flags = sum(bool(r["unconfirmed"]) for r in told)
+            print(f"no effect: an unconfirmed search flagged on {flags}/{len(told)}")
     print(
         "effect              strength  n  detected  first  recovered/truth (median)  "
-        "interval holds truth  others needed  oracle fall (median)  s/recording"
+        "interval holds truth  others needed  oracle fall (median)  s/recording  "
+        "unconfirmed (true/any)"
     )
     for effect in EFFECTS:
         for strength in STRENGTHS:
@@ -262,8 +269,19 @@ def summary(rows):
                 f"{f'{sum(held)}/{len(held)}':>20s}  "
                 f"{len(others) / len(got):13.0%}  "
                 f"{np.median([r['oracle_fall'] for r in got]):20.2%}  "
-                f"{np.median([r['seconds'] for r in got]):11.0f}"
+                f"{np.median([r['seconds'] for r in got]):11.0f}  "
+                f"{unconfirmed(got, effect):>22s}"
             )
+
+
+def unconfirmed(rows, effect) -> str:
+    """Of the recordings that record it, where the true effect was not needed: how many
+    name it unconfirmed, and how many name any effect unconfirmed (``true/any of n``)."""
+    told = [r for r in rows if "unconfirmed" in r and effect not in r["needed"]]
+    if not told:
+        return "-"
+    true = sum(effect in r["unconfirmed"] for r in told)
+    return f"{true}/{sum(bool(r['unconfirmed']) for r in told)} of {len(told)}"
 
 
 def read_rows(out: pathlib.Path, warmup) -> list[dict]:

@@ -780,6 +780,13 @@ class Calibrated:
             compares with ``null_max_t``, and what orders candidates whose p-values tie (at
             the smallest, 1 / (1 + replicates), when several fall beyond every null
             recording).
+        search_p_values: each candidate's search refit (``estimates``, swarm and polish:
+            a search that the null recordings do not get) put to the same family-wise test:
+            (1 + null recordings whose largest centred statistic reaches the search refit's)
+            / (1 + null recordings); NaN without a search refit. Not evidence (the search
+            chose its basin on the recording, a favour the null recordings' refits from fixed
+            starts do not have), but where it reaches alpha while the calibrated p-value
+            does not, the calibrated refits missed what the search found (`unconfirmed`).
         variability: the variability and noise of the null recordings.
         intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
             alpha, else None.
@@ -804,6 +811,7 @@ class Calibrated:
     intervals: tuple
     interval_level: float
     cycles: CycleVariability | None = None
+    search_p_values: tuple = ()
 
     def ranking(self) -> list[str]:
         """The candidates' names, best first: by family-wise p-value, ties (several
@@ -847,8 +855,9 @@ def calibrate(
     its control too, after that warm-up; the others in the fit's own sampling.
 
     Sequential: null recordings come in batches of ``calibration.batch`` (the first one
-    with the recording itself); once every candidate's family-wise p-value exceeds
-    ``alpha`` whatever the remaining ones show, no more are simulated.
+    with the recording itself); once every candidate's family-wise p-value, and its search
+    refit's (``search_p_values``), exceeds ``alpha`` whatever the remaining ones show, no
+    more are simulated.
 
     For each candidate whose p-value is at most ``alpha``, its values refined (its refit on
     the recording continued from where the statistic's ended) and their interval (a
@@ -860,8 +869,9 @@ def calibrate(
 
     ``estimates``: per candidate, a fit of the model with it (`FitResult` or None, such as
     a search's refit on the recording): a start of the statistic's refits for a candidate
-    with a single basin (`refit_jobs`), and, where its error is below the statistic's
-    refit's, the start of the refinement. ``anchor``: values of the fitted
+    with a single basin (`refit_jobs`), where its error is below the statistic's refit's
+    the start of the refinement, and the search refit whose fall ``search_p_values``
+    tests. ``anchor``: values of the fitted
     parameters (`anchor_values`) about which a candidate with many basins has a pool of
     starts (`refit_jobs`). ``refine``: called with the test's result (before its
     intervals), returns the estimates that start the refinement in place of
@@ -898,6 +908,17 @@ def calibrate(
     cc, cb, yb = statistics(np.concatenate(rows))
     main = groups[0].owner[0]  # a candidate of the shortest warm-up's group
     q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
+    searched = np.array(
+        [math.nan if e is None else float(e.nmse) for e in (estimates or [None] * n_cands)]
+    )
+    has_search = np.isfinite(searched)
+    q_search = np.where(
+        has_search,
+        f_p_values(
+            cc[:1], np.where(has_search, searched, 1.0)[None], recording.n_frames, n_fitted, dofs
+        )[0],
+        1.0,
+    )
     level_count = alpha * (calibration.replicates + 1)  # exceedances that rule a candidate out
     nulls_q, controls = [], []
     c, b = cc[1:], cb[1:]  # the first batch's null recordings
@@ -911,11 +932,14 @@ def calibrate(
         controls += list(c[:take, main])
         c = b = []
         family = family_p_values(q_obs, np.asarray(nulls_q))[0]
-        if np.all(family * (len(nulls_q) + 1) > level_count):
+        searches = family_p_values(q_search, np.asarray(nulls_q))[0]
+        open_ = np.minimum(family, np.where(has_search, searches, np.inf))
+        if np.all(open_ * (len(nulls_q) + 1) > level_count):
             break
     nulls_q = np.asarray(nulls_q)
     n = len(nulls_q)
     family, marginal, nulls_max, centred = family_p_values(q_obs, nulls_q)
+    search_p = np.where(has_search, family_p_values(q_search, nulls_q)[0], math.nan)
     group_of = {k: g for g in groups for k in g.owner}
     values = [_values(group_of[k], yb[k][0], c) for k, c in enumerate(cands)]
     intervals = [None] * n_cands
@@ -943,6 +967,7 @@ def calibrate(
         variability=variability,
         intervals=tuple(intervals),
         interval_level=calibration.interval,
+        search_p_values=tuple(float(x) for x in search_p),
     )
     if refine is not None:
         estimates = refine(tested)

@@ -1,6 +1,7 @@
 """`diagnose`: the score tests, the refits and the verdict of one fit; `extend` by hand."""
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -129,6 +130,7 @@ def diagnose(
                 cal.marginal_p_values[k],
                 cal.intervals[k],
                 off,
+                cal.search_p_values[k] if cal.search_p_values else math.nan,
             )
             if progress:
                 print(

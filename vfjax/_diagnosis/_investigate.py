@@ -123,6 +123,12 @@ class Investigation:
                 f"reaches the edge of the {low:.0f}-{high:.0f} dyne/cm² of phonation "
                 "(vfjax.PRESSURE_RANGE, which no fit leaves): read its parameters with care"
             )
+        unconfirmed = self.rounds[-1].diagnosis.unconfirmed
+        if unconfirmed:
+            words += (
+                f"; the search's refits with {', '.join(unconfirmed)} fit better but are "
+                "unconfirmed (the calibrated refits do not reach them): compare the fits"
+            )
         cycles = self.rounds[-1].diagnosis.variability
         if cycles is not None and cycles.needed(self.rounds[-1].diagnosis.criteria.alpha):
             words += (

@@ -31,6 +31,9 @@ class EffectRefit:
         interval: ``{parameter: (low, high)}`` at ``Calibration.interval`` (a parametric
             bootstrap), for a significant effect; None otherwise.
         off_values: the values of its tested parameters that switch it off.
+        search_p_value: the search's refit (``result``) put to the same family-wise test
+            (`vfjax.diagnosis.Calibrated.search_p_values`): not evidence, since the null
+            recordings are not searched alike; NaN where not computed.
     """
 
     effect: str
@@ -43,6 +46,7 @@ class EffectRefit:
     marginal_p_value: float
     interval: dict | None
     off_values: dict
+    search_p_value: float = math.nan
 
     @property
     def identified(self) -> bool:
@@ -121,6 +125,23 @@ class Diagnosis:
         return None if self.calibrated is None else self.calibrated.cycles
 
     @property
+    def unconfirmed(self) -> list[str]:
+        """Candidates whose search refit passes the calibrated test at alpha while their
+        calibrated refit does not, best search first: the search reached a basin that the
+        calibrated refits (from fixed starts, as on the null recordings) do not. On a
+        rugged error surface (a pressure modulation that switches closures on and off) the
+        fixed starts miss what the search finds; the search's own p-value is no evidence,
+        as the null recordings get no search, so the effect is neither needed nor ruled
+        out: compare the fits (`vfjax.workflow.extend_from`)."""
+        alpha = self.criteria.alpha
+        flagged = [
+            f
+            for f in self.refits.values()
+            if f.search_p_value <= alpha and f.p_value > alpha and f.result.nmse < f.nmse
+        ]
+        return [f.effect for f in sorted(flagged, key=lambda f: f.result.nmse)]
+
+    @property
     def best(self) -> str | None:
         """The effect to add (the top needed one), or None."""
         return self.needed[0] if self.needed else None
@@ -153,6 +174,8 @@ class Diagnosis:
                     "values": f.values if f else {},
                     "interval": f.interval if f else None,
                     "needed": name in self.needed,
+                    "search_p_value": f.search_p_value if f else None,
+                    "unconfirmed": name in self.unconfirmed,
                 }
             )
         return rows
@@ -235,6 +258,7 @@ def verdict_text(d: Diagnosis) -> str:
             f"NMSE {before:.3%}, {floor})"
         )
     lines += _unassessed_text(d)
+    lines += _unconfirmed_text(d)
     cycles = _cycles_text(d)
     if cycles:
         lines.append(cycles)
@@ -265,6 +289,38 @@ def _unassessed_text(d: Diagnosis) -> list[str]:
         "after the longer warm-up they need, the fitted model itself fits worse, so their "
         "p-values say nothing against them"
     ]
+
+
+def _unconfirmed_text(d: Diagnosis) -> list[str]:
+    """The sentence on candidates whose search refit the calibrated refits do not reach
+    (`Diagnosis.unconfirmed`)."""
+    names = d.unconfirmed
+    if not names:
+        return []
+    listed = ", ".join(
+        f"{n} (NMSE {d.refits[n].result.nmse:.3%} against {d.refits[n].nmse:.3%}"
+        + "".join(f"; {v}" for v in [_sizes_of(d.refits[n].result, n)] if v)
+        + ")"
+        for n in names
+    )
+    return [
+        f"Unconfirmed: the search's refits with {listed} reach errors that the calibrated "
+        "refits, made from fixed starts on the recording as on every null recording, do "
+        f"not, and lie beyond the null recordings at alpha = {d.criteria.alpha:g}; the "
+        "null recordings are not searched alike, so this is no evidence, but the effect is "
+        "not ruled out either: compare the fits (vfjax.workflow.extend_from)"
+    ]
+
+
+def _sizes_of(result: FitResult, effect: str) -> str:
+    """The effect's parameter values in a refit's model."""
+    term = next((t for t in result.model.terms if type(t).__name__ == effect), None)
+    if term is None:
+        return ""
+    return ", ".join(
+        f"{n} = {float(getattr(term, field)):.4g}"
+        for n, (field, _) in type(term).parameters.items()
+    )
 
 
 def _cycles_text(d: Diagnosis) -> str:
