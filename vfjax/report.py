@@ -26,6 +26,14 @@ def _fmt(v, digits=4):
     return f"{v:.{digits}g}"
 
 
+def _needed_cell(row: dict) -> str:
+    """The "needed" cell of a candidate's row: yes, unconfirmed (its search refit passes
+    where its calibrated refit does not, `vfjax.Diagnosis.unconfirmed`) or no."""
+    if row["needed"]:
+        return "**yes**"
+    return "unconfirmed" if row.get("unconfirmed") else "no"
+
+
 def _p(v):
     return "-" if v is None else ("< 1e-16" if v < 1e-16 else f"{v:.2g}")
 
@@ -158,7 +166,7 @@ def _round_lines(i: int, r: Round, recording: Recording, folder: pathlib.Path, d
             f"| {row['rank']} | {row['effect']} | {row['statistic']:.3g} | "
             f"{_p(row['p_value'])} | {nmse} | {fall} | {_p(row['refit_f_p_value'])} | "
             f"{_p(row['calibrated_p_value'])} | "
-            f"{'**yes**' if row['needed'] else 'no'} | {values} |"
+            f"{_needed_cell(row)} | {values} |"
         )
     if d.refits:
         fig, ax = plt.subplots(figsize=(7, 0.5 + 0.45 * len(d.refits)))
