@@ -339,6 +339,7 @@ def test_a_diagnosed_recordings_row_and_folder(serial, tmp_path):
     row = study_row(entry, rec, study, 1.5)
     outcome = study.outcome(rec)
     assert row["status"] == "done" and row["effects needed"] == ""
+    assert row["effects unconfirmed"] == ""
     assert row["first NMSE"] == row["final NMSE"] == first.nmse
     assert row["noise NMSE"] == outcome.noise_nmse and row["outcome"] == outcome.status
     assert row["settled NMSE"] == outcome.settling.nmse

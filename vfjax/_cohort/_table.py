@@ -32,6 +32,7 @@ LEADING_COLUMNS = (
     "settled",
     "outcome",
     "effects needed",
+    "effects unconfirmed",
 )
 TRAILING_COLUMNS = ("conclusion", "seconds")
 #: Counts (missing where a recording could not be read).
@@ -61,7 +62,8 @@ def table(rows: list[dict], groups: list[str]):
     tail = [c for c in TRAILING_COLUMNS if c in present]
     middle = [c for c in present if c not in head and c not in tail]
     frame = frame.reindex(columns=head + middle + tail)
-    for column in ("reason", "settled", "outcome", "effects needed", "conclusion", *groups):
+    text = ("reason", "settled", "outcome", "effects needed", "effects unconfirmed", "conclusion")
+    for column in (*text, *groups):
         if column in frame:
             frame[column] = frame[column].fillna("").astype(str)
     for column in INTEGER_COLUMNS:

@@ -141,7 +141,8 @@ def fit_row(entry: CohortEntry, rec: Recording, first, seconds: float) -> dict:
 
 def study_row(entry: CohortEntry, rec: Recording, study, seconds: float) -> dict:
     """The row of a recording fitted and diagnosed (`vfjax.Investigation`): NMSE before and
-    after, the effects added with their calibrated p-values and intervals, the final round's
+    after, the effects added with their calibrated p-values and intervals, those the final
+    round names unconfirmed (`vfjax.Diagnosis.unconfirmed`), the final round's
     test of cycle-to-cycle variability, whether the final fit is settled (`vfjax.settling`:
     its NMSE after the longer warm-up), the outcome and the final model's parameters."""
     outcome = study.outcome(rec)
@@ -157,6 +158,8 @@ def study_row(entry: CohortEntry, rec: Recording, study, seconds: float) -> dict
         "settled": "yes" if outcome.settling.settled else "no",
         "outcome": outcome.status,
         "effects needed": "; ".join(study.added),
+        # found by the final round's search but not by its calibrated refits
+        "effects unconfirmed": "; ".join(study.rounds[-1].diagnosis.unconfirmed),
         **_parameter_columns(final),
     }
     for r in study.rounds:
