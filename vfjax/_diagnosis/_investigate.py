@@ -28,7 +28,7 @@ from ._candidates import offered
 from ._diagnose import diagnose
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
 from ._refits import error, refit_each
-from ._verdict import Diagnosis
+from ._verdict import EXPLAINED_SHARE, Diagnosis
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,11 +150,6 @@ class Investigation:
             words=words,
             settling=settled,
         )
-
-
-#: The share of the misfit above the noise floor that added effects must remove for a
-#: recording to count as explained (`Investigation.outcome`).
-EXPLAINED_SHARE = 0.5
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,6 +8,11 @@ from ..compare import Comparison
 from ._options import Criteria, RefitPlan
 from ._score import EffectScore
 
+#: The share of the misfit above the noise floor that added effects must remove for a
+#: recording to count as explained (`Investigation.outcome`), and that a search refit must
+#: remove to be named unconfirmed (`Diagnosis.unconfirmed`).
+EXPLAINED_SHARE = 0.5
+
 
 @dataclasses.dataclass(frozen=True)
 class EffectRefit:
@@ -126,18 +131,25 @@ class Diagnosis:
 
     @property
     def unconfirmed(self) -> list[str]:
-        """Candidates whose search refit passes the calibrated test at alpha while their
-        calibrated refit does not, best search first: the search reached a basin that the
+        """Candidates whose search refit passes the calibrated test at alpha, and would
+        explain the recording (it removes `EXPLAINED_SHARE` of the misfit above the noise
+        floor, as an added effect must in `vfjax.workflow.Investigation.outcome`), while
+        their calibrated refit does not pass, best search first: the search reached a basin
+        that the
         calibrated refits (from fixed starts, as on the null recordings) do not. On a
         rugged error surface (a pressure modulation that switches closures on and off) the
         fixed starts miss what the search finds; the search's own p-value is no evidence,
         as the null recordings get no search, so the effect is neither needed nor ruled
         out: compare the fits (`vfjax.workflow.extend_from`)."""
         alpha = self.criteria.alpha
+        before, floor = self.nmse_before, self.noise_nmse
         flagged = [
             f
             for f in self.refits.values()
-            if f.search_p_value <= alpha and f.p_value > alpha and f.result.nmse < f.nmse
+            if f.search_p_value <= alpha
+            and f.p_value > alpha
+            and f.result.nmse < f.nmse
+            and before - f.result.nmse >= EXPLAINED_SHARE * (before - floor)
         ]
         return [f.effect for f in sorted(flagged, key=lambda f: f.result.nmse)]
 
