@@ -247,9 +247,10 @@ def test_shared_gap_case(shared_dir):
     worse = dataclasses.replace(d.refits["MucosalDelay"], nmse=0.04, fall=-1.0)
     flagged = verdict_text(dataclasses.replace(d, refits={**d.refits, "MucosalDelay": worse}))
     assert "Not assessed: the refits with MucosalDelay (NMSE 4.000% against 2.000%)" in flagged
-    # every search refit is put to the calibrated test too; the gap's search is not flagged
-    # (it is needed), nor is any other (their searches do not pass where their refits fail)
-    assert all(0 < f.search_p_value <= 1 for f in d.refits.values())
+    # the search refits that would explain the recording are put to the calibrated test
+    # too (the gap's, at least); none is flagged: the gap is needed, the others do not pass
+    assert 0 < refit.search_p_value <= d.level
+    assert all(math.isnan(f.search_p_value) or 0 < f.search_p_value <= 1 for f in d.refits.values())
     assert d.unconfirmed == [] and "Unconfirmed" not in d.verdict
     # a search refit that passes where its calibrated refit does not is named unconfirmed, in
     # the verdict and in the investigation's words, and is neither needed nor ruled out

@@ -783,7 +783,8 @@ class Calibrated:
         search_p_values: each candidate's search refit (``estimates``, swarm and polish:
             a search that the null recordings do not get) put to the same family-wise test:
             (1 + null recordings whose largest centred statistic reaches the search refit's)
-            / (1 + null recordings); NaN without a search refit. Not evidence (the search
+            / (1 + null recordings); NaN without a search refit or where it is not tested
+            (``tested_searches``). Not evidence (the search
             chose its basin on the recording, a favour the null recordings' refits from fixed
             starts do not have), but where it reaches alpha while the calibrated p-value
             does not, the calibrated refits missed what the search found (`unconfirmed`).
@@ -844,6 +845,7 @@ def calibrate(
     estimates=None,
     anchor: dict | None = None,
     refine=None,
+    tested_searches=None,
 ) -> Calibrated:
     """Calibrate each candidate's refit statistic on null recordings of ``result``.
 
@@ -875,7 +877,10 @@ def calibrate(
     parameters (`anchor_values`) about which a candidate with many basins has a pool of
     starts (`refit_jobs`). ``refine``: called with the test's result (before its
     intervals), returns the estimates that start the refinement in place of
-    ``estimates`` (such as a larger search for the effect the test ranks first)."""
+    ``estimates`` (such as a larger search for the effect the test ranks first).
+    ``tested_searches``: per candidate, whether its search refit is tested (default: every
+    one there is); the diagnosis tests those that would explain the recording, whose
+    verdict the test can change (`vfjax.Diagnosis.unconfirmed`)."""
     cands = list(cands)
     steps = calibration.steps
     groups = refit_groups(result, recording, cands, estimates, steps, anchor, calibration.pool)
@@ -912,6 +917,8 @@ def calibrate(
         [math.nan if e is None else float(e.nmse) for e in (estimates or [None] * n_cands)]
     )
     has_search = np.isfinite(searched)
+    if tested_searches is not None:
+        has_search &= np.asarray(tested_searches, bool)
     q_search = np.where(
         has_search,
         f_p_values(

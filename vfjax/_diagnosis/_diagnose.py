@@ -16,7 +16,7 @@ from ._candidates import as_candidates
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
 from ._refits import anchor_values, confirm, error, refit_each, refit_starts
 from ._score import score_tests
-from ._verdict import Diagnosis, EffectRefit, verdict_text
+from ._verdict import EXPLAINED_SHARE, Diagnosis, EffectRefit, verdict_text
 
 
 def diagnose(
@@ -106,8 +106,21 @@ def diagnose(
                 control, fitted_each = confirmed(leader)
             return fitted_each
 
+        # the search refits worth testing: those that would explain the recording, the only
+        # ones the test can name unconfirmed (testing others keeps null recordings coming)
+        before = min(result.nmse, control.nmse)
+        floor = _noise_nmse(recording, [result, control, *fitted_each], sse_scale)
+        explains = [before - f.nmse >= EXPLAINED_SHARE * (before - floor) for f in fitted_each]
         cal = calibrate(
-            base, recording, cands, criteria.alpha, calibration, fitted_each, anchor, refine
+            base,
+            recording,
+            cands,
+            criteria.alpha,
+            calibration,
+            fitted_each,
+            anchor,
+            refine,
+            tested_searches=explains,
         )
         if progress:
             print(
