@@ -1,7 +1,6 @@
 """`diagnose`: the score tests, the refits and the verdict of one fit; `extend` by hand."""
 
 import dataclasses
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -16,7 +15,7 @@ from ._candidates import as_candidates
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
 from ._refits import anchor_values, confirm, error, refit_each, refit_starts
 from ._score import score_tests
-from ._verdict import EXPLAINED_SHARE, Diagnosis, EffectRefit, verdict_text
+from ._verdict import Diagnosis, EffectRefit, explains, verdict_text
 
 
 def diagnose(
@@ -110,7 +109,7 @@ def diagnose(
         # ones the test can name unconfirmed (testing others keeps null recordings coming)
         before = min(result.nmse, control.nmse)
         floor = _noise_nmse(recording, [result, control, *fitted_each], sse_scale)
-        explains = [before - f.nmse >= EXPLAINED_SHARE * (before - floor) for f in fitted_each]
+        tested = [explains(before, f.nmse, floor) for f in fitted_each]
         cal = calibrate(
             base,
             recording,
@@ -120,7 +119,7 @@ def diagnose(
             fitted_each,
             anchor,
             refine,
-            tested_searches=explains,
+            tested_searches=tested,
         )
         if progress:
             print(
@@ -143,7 +142,7 @@ def diagnose(
                 cal.marginal_p_values[k],
                 cal.intervals[k],
                 off,
-                cal.search_p_values[k] if cal.search_p_values else math.nan,
+                cal.search_p_values[k],
             )
             if progress:
                 print(

@@ -14,6 +14,12 @@ from ._score import EffectScore
 EXPLAINED_SHARE = 0.5
 
 
+def explains(before: float, after: float, floor: float) -> bool:
+    """Whether a fit of NMSE ``after`` removes `EXPLAINED_SHARE` of the misfit above the
+    noise floor ``floor`` (NMSE) that a fit of NMSE ``before`` leaves."""
+    return before - after >= EXPLAINED_SHARE * (before - floor)
+
+
 @dataclasses.dataclass(frozen=True)
 class EffectRefit:
     """The refit with one candidate effect, and its calibrated test.
@@ -135,9 +141,8 @@ class Diagnosis:
         explain the recording (it removes `EXPLAINED_SHARE` of the misfit above the noise
         floor, as an added effect must in `vfjax.workflow.Investigation.outcome`), while
         their calibrated refit does not pass, best search first: the search reached a basin
-        that the
-        calibrated refits (from fixed starts, as on the null recordings) do not. On a
-        rugged error surface (a pressure modulation that switches closures on and off) the
+        that the calibrated refits (from fixed starts, as on the null recordings) do not. On
+        a rugged error surface (a pressure modulation that switches closures on and off) the
         fixed starts miss what the search finds; the search's own p-value is no evidence,
         as the null recordings get no search, so the effect is neither needed nor ruled
         out: compare the fits (`vfjax.workflow.extend_from`)."""
@@ -149,7 +154,7 @@ class Diagnosis:
             if f.search_p_value <= alpha
             and f.p_value > alpha
             and f.result.nmse < f.nmse
-            and before - f.result.nmse >= EXPLAINED_SHARE * (before - floor)
+            and explains(before, f.result.nmse, floor)
         ]
         return [f.effect for f in sorted(flagged, key=lambda f: f.result.nmse)]
 
@@ -165,7 +170,7 @@ class Diagnosis:
 
     def table(self) -> list[dict]:
         """One row per candidate, in ranking order."""
-        rows = []
+        rows, unconfirmed = [], self.unconfirmed
         for rank, name in enumerate(self.ranking, 1):
             s = self.scores[name]
             f = self.refits.get(name)
@@ -187,7 +192,7 @@ class Diagnosis:
                     "interval": f.interval if f else None,
                     "needed": name in self.needed,
                     "search_p_value": f.search_p_value if f else None,
-                    "unconfirmed": name in self.unconfirmed,
+                    "unconfirmed": name in unconfirmed,
                 }
             )
         return rows
@@ -199,12 +204,13 @@ def evidence(score: EffectScore, refit: "EffectRefit | None") -> float:
     return score.p_value if refit is None else refit.p_value
 
 
-def _sizes(f: EffectRefit) -> str:
+def _sizes(values: dict, interval: dict | None = None) -> str:
+    """An effect's parameter ``values``, each with its interval where ``interval`` has one."""
     parts = []
-    for k, v in f.values.items():
+    for k, v in values.items():
         text = f"{k} = {v:.4g}"
-        if f.interval and k in f.interval:
-            lo, hi = f.interval[k]
+        if interval and k in interval:
+            lo, hi = interval[k]
             text += f" [{lo:.3g}, {hi:.3g}]"
         parts.append(text)
     return ", ".join(parts)
@@ -234,7 +240,7 @@ def verdict_text(d: Diagnosis) -> str:
             fall = 1.0 - after / before if before > 0 else 0.0
             text += (
                 f": adding it lowers the NMSE from {before:.3%} to {after:.3%} "
-                f"({fall:.0%} of the squared error; {_sizes(f)}"
+                f"({fall:.0%} of the squared error; {_sizes(f.values, f.interval)}"
                 + (f", {cal.interval_level:.0%} intervals)" if f.interval else ")")
             )
             if d.noise_nmse > 0:
@@ -252,7 +258,7 @@ def verdict_text(d: Diagnosis) -> str:
         lines.append(
             f"No catalogue effect is needed: {n} is detectable (p = {f.p_value:.2g}{against}) "
             f"but not identifiable: its fitted size's interval includes its off-value "
-            f"({_sizes(f)}; NMSE {before:.3%}, {floor})"
+            f"({_sizes(f.values, f.interval)}; NMSE {before:.3%}, {floor})"
         )
     elif significant:
         lines.append(
@@ -309,12 +315,13 @@ def _unconfirmed_text(d: Diagnosis) -> list[str]:
     names = d.unconfirmed
     if not names:
         return []
-    listed = ", ".join(
-        f"{n} (NMSE {d.refits[n].result.nmse:.3%} against {d.refits[n].nmse:.3%}"
-        + "".join(f"; {v}" for v in [_sizes_of(d.refits[n].result, n)] if v)
-        + ")"
-        for n in names
-    )
+    found = []
+    for f in (d.refits[n] for n in names):
+        searched = {k: float(f.result.model.params()[k]) for k in f.values}  # the search's
+        found.append(
+            f"{f.effect} (NMSE {f.result.nmse:.3%} against {f.nmse:.3%}; {_sizes(searched)})"
+        )
+    listed = ", ".join(found)
     return [
         f"Unconfirmed: the search's refits with {listed} reach errors that the calibrated "
         "refits, made from fixed starts on the recording as on every null recording, do "
@@ -322,17 +329,6 @@ def _unconfirmed_text(d: Diagnosis) -> list[str]:
         "null recordings are not searched alike, so this is no evidence, but the effect is "
         "not ruled out either: compare the fits (vfjax.workflow.extend_from)"
     ]
-
-
-def _sizes_of(result: FitResult, effect: str) -> str:
-    """The effect's parameter values in a refit's model."""
-    term = next((t for t in result.model.terms if type(t).__name__ == effect), None)
-    if term is None:
-        return ""
-    return ", ".join(
-        f"{n} = {float(getattr(term, field)):.4g}"
-        for n, (field, _) in type(term).parameters.items()
-    )
 
 
 def _cycles_text(d: Diagnosis) -> str:
