@@ -478,7 +478,7 @@ def _integrate_scan(model, start, *, h, n_steps, n_iter, origin):
     return end, _batch_first(rows)
 
 
-def _integrate_loop(model, start, *, h, n_steps, n_iter, origin):
+def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None):
     """As `_integrate_scan`, bit for bit, but stopping once every member of the batch is done.
 
     A hold takes one iteration, so a recording that closes for half of each cycle needs about
@@ -487,31 +487,50 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin):
     idle, as in the scan, and the rows never reached are filled with the final state, as the
     scan's idle iterations would have written them. A `lax.while_loop` has no reverse mode:
     `_integrate` differentiates `_integrate_scan` instead.
+
+    ``warm``: ``(first_step, budget)``, a stretch of motion kept in no row that comes first:
+    the iterations up to the grid step ``first_step``, at most ``budget`` of them (rounded up
+    to whole trips). It runs through the same loop, so the iteration's body is compiled once.
+    Returns ``(begin, end, rows)``, ``begin`` being the state where the rows start; without
+    ``warm``, ``(end, rows)``.
     """
-    body = _iteration(model, h, n_steps, origin)
+    first_step, budget = (n_steps, 0) if warm is None else warm
     final = (start.t, start.x, start.v, start.phase_code(), start.z)
     rows = jax.tree.map(lambda y: jnp.zeros((n_iter,) + jnp.shape(y), jnp.result_type(y)), final)
 
+    def warming_after(i, c):
+        return eqxi.unvmap_any((i < budget) & c.active(first_step))
+
     def trip(state):
-        i, c, rows = state
-        c, chunk = jax.lax.scan(body, c, None, length=_CHUNK, unroll=_UNROLL)
+        warming, i, j, begin, c, rows = state
+        body = _iteration(model, h, jnp.where(warming, first_step, n_steps), origin)
+        new, chunk = jax.lax.scan(body, c, None, length=_CHUNK, unroll=_UNROLL)
+        # a warm-up trip's rows land where the first kept trip writes its own
         rows = jax.tree.map(
-            lambda a, r: jax.lax.dynamic_update_slice_in_dim(a, r, i, 0), rows, chunk
+            lambda a, r: jax.lax.dynamic_update_slice_in_dim(a, r, j, 0), rows, chunk
         )
-        return i + _CHUNK, c, rows
+        # while warming, the members beyond the budget stay where they are
+        c = jax.tree.map(lambda a, b: jnp.where(warming & (i >= budget), b, a), new, c)
+        i = jnp.where(warming, i + _CHUNK, i)
+        j = jnp.where(warming, j, j + _CHUNK)
+        begin = jax.tree.map(lambda a, b: jnp.where(warming, a, b), c, begin)
+        return warming & warming_after(i, c), i, j, begin, c, rows
 
     def running(state):
-        i, c, _ = state
-        return (i < n_iter) & eqxi.unvmap_any(c.active(n_steps))
+        warming, _, j, _, c, _ = state
+        return warming | ((j < n_iter) & eqxi.unvmap_any(c.active(n_steps)))
 
-    i, end, rows = jax.lax.while_loop(running, trip, (0, start, rows))
-    done = jnp.arange(n_iter) >= i
+    zero = jnp.zeros((), jnp.int32)
+    state = (warming_after(zero, start), zero, zero, start, start, rows)
+    _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
+    done = jnp.arange(n_iter) >= j
     final = (end.t, end.x, end.v, end.phase_code(), end.z)
 
     def fill(f, r):
         return jnp.where(jnp.reshape(done, done.shape + (1,) * jnp.ndim(f)), f, r)
 
-    return end, _batch_first(jax.tree.map(fill, final, rows))
+    rows = _batch_first(jax.tree.map(fill, final, rows))
+    return (end, rows) if warm is None else (begin, end, rows)
 
 
 def _batch_first(rows):
@@ -952,22 +971,16 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
     Forward-mode derivatives only (`jax.jvp`, `jax.jacfwd`).
     """
     start = _start(model, jnp.asarray(model.contact_displacement, float), jnp.zeros((), float))
-    warm = _iteration(model, grid.h, grid.window_step, grid.t_start)
-
-    def warm_trip(state):
-        i, c = state
-        new, _ = jax.lax.scan(warm, c, None, length=_CHUNK, unroll=_UNROLL)
-        return i + _CHUNK, jax.tree.map(lambda a, b: jnp.where(i < grid.warm_budget, a, b), new, c)
-
-    def warming(state):
-        i, c = state
-        return eqxi.unvmap_any((i < grid.warm_budget) & c.active(grid.window_step))
-
-    _, begin = jax.lax.while_loop(warming, warm_trip, (jnp.zeros((), jnp.int32), start))
-    warmed = ~begin.active(grid.window_step) | begin.flag(_DIVERGED)
-    end, rows = _integrate_loop(
-        model, begin, h=grid.h, n_steps=grid.n_steps, n_iter=n_rows, origin=grid.t_start
+    begin, end, rows = _integrate_loop(
+        model,
+        start,
+        h=grid.h,
+        n_steps=grid.n_steps,
+        n_iter=n_rows,
+        origin=grid.t_start,
+        warm=(grid.window_step, grid.warm_budget),
     )
+    warmed = ~begin.active(grid.window_step) | begin.flag(_DIVERGED)
     counted = jnp.arange(n_out) < grid.n_frames
     times = grid.t_start + time_shift + jnp.arange(n_out) / grid.fps
     # a polish may move the frames a little before the warm-up's end (half the lookback)
