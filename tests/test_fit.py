@@ -332,24 +332,30 @@ def test_a_first_fit_that_matches_the_start_up_is_made_again_after_a_longer_warm
     assert both[1].params == pytest.approx(first.params, rel=1e-6)
 
 
-def test_a_long_recording_is_fitted_by_continuation_in_its_length():
-    """A recording of about 31 cycles (N3, 0.15 s at 2 kHz, closure jitter): the swarm and a
-    first polish fit its first 16 cycles, the next polish all of them; the fit reaches the
-    error of the true parameters polished (a relative f0 error of 3 % would slip a whole
-    cycle; a closure hold one cycle longer skips every other closure). In one batch with a
-    short recording, each fit equals its fit alone: the short one is polished once, from
-    its swarm's best, as alone."""
+@pytest.fixture(scope="module")
+def continued():
+    """A recording of about 31 cycles (N3, 0.15 s at 2 kHz, closure jitter) and a short one
+    (101 frames), fitted in one batch: (long, short, both fits, swarm, key)."""
+    long = vfjax.datasets.demo_recording("N3", 1.5, 3, 2000.0, 301, jitter=0.003)
+    short = vfjax.datasets.demo_recording("N3", 1.5, 4, 2000.0, 101)
+    swarm, key = Swarm(size=16, iterations=40), jax.random.key(0)
+    both = vfjax.fit_recordings([long, short], restarts=1, swarm=swarm, key=key)
+    return long, short, both, swarm, key
+
+
+def test_a_long_recording_is_fitted_by_continuation_in_its_length(continued):
+    """The long recording: the swarm and a first polish fit its first 16 cycles, the next
+    polish all of them; the fit reaches the error of the true parameters polished (a
+    relative f0 error of 3 % would slip a whole cycle; a closure hold one cycle longer skips
+    every other closure). The short one is polished once, from its swarm's best."""
     from vfjax._fit._engine import _stages
 
-    long = vfjax.datasets.demo_recording("N3", 1.5, 3, 2000.0, 301, jitter=0.003)
+    long, short, both, _, _ = continued
     clean = vfjax.datasets.demo_recording("N3", 0.0, 3, 2000.0, 301, jitter=0.003)
-    short = vfjax.datasets.demo_recording("N3", 1.5, 4, 2000.0, 101)
     period = 1.0 / vfjax.descriptors.fundamental_frequency(long.area, long.fps)
     stages = _stages([long, short], [(None, period)] * 2)
     assert len(stages) == 2 and stages[-1] == [301, 101] and stages[0][1] == 101
     assert stages[0][0] == pytest.approx(16 * period * 2000.0, abs=1)
-    swarm, key = Swarm(size=16, iterations=40), jax.random.key(0)
-    both = vfjax.fit_recordings([long, short], restarts=1, swarm=swarm, key=key)
     truth = vfjax.fit(
         vfjax.preset("N3"), long, params=("S", "K", "C_f", "t_c"), swarm=Swarm(iterations=0)
     )
@@ -357,6 +363,12 @@ def test_a_long_recording_is_fitted_by_continuation_in_its_length():
     assert truth.nmse < 4.0 * floor  # rounding to whole pixels and the closure jitter
     assert both[0].nmse < 1.02 * truth.nmse, (both[0].nmse, truth.nmse)
     assert both[0].params["K"] == pytest.approx(float(vfjax.preset("N3").params()["K"]), rel=0.05)
+
+
+@pytest.mark.slow  # a fit's independence of its batch is checked by default in a short batch
+def test_each_fit_of_a_continued_batch_equals_its_fit_alone(continued):
+    """In one batch with a short recording, each fit equals its fit alone."""
+    long, short, both, swarm, key = continued
     # the long recording runs through the same programs alone; the short one, alone in the
     # 128-frame bucket, in the batch's 512: the swarm's costs then round otherwise (1e-16),
     # and its polish ends 1e-7 away along a flat valley of the error, at the same NMSE
