@@ -494,35 +494,54 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None):
     Returns ``(begin, end, rows)``, ``begin`` being the state where the rows start; without
     ``warm``, ``(end, rows)``.
     """
-    first_step, budget = (n_steps, 0) if warm is None else warm
     final = (start.t, start.x, start.v, start.phase_code(), start.z)
     rows = jax.tree.map(lambda y: jnp.zeros((n_iter,) + jnp.shape(y), jnp.result_type(y)), final)
 
-    def warming_after(i, c):
-        return eqxi.unvmap_any((i < budget) & c.active(first_step))
-
-    def trip(state):
-        warming, i, j, begin, c, rows = state
-        body = _iteration(model, h, jnp.where(warming, first_step, n_steps), origin)
+    def advance(c, rows, j, last_step):
+        """One trip: ``_CHUNK`` iterations towards the grid step ``last_step``, their rows
+        written from row ``j``."""
+        body = _iteration(model, h, last_step, origin)
         new, chunk = jax.lax.scan(body, c, None, length=_CHUNK, unroll=_UNROLL)
-        # a warm-up trip's rows land where the first kept trip writes its own
         rows = jax.tree.map(
             lambda a, r: jax.lax.dynamic_update_slice_in_dim(a, r, j, 0), rows, chunk
         )
-        # while warming, the members beyond the budget stay where they are
-        c = jax.tree.map(lambda a, b: jnp.where(warming & (i >= budget), b, a), new, c)
-        i = jnp.where(warming, i + _CHUNK, i)
-        j = jnp.where(warming, j, j + _CHUNK)
-        begin = jax.tree.map(lambda a, b: jnp.where(warming, a, b), c, begin)
-        return warming & warming_after(i, c), i, j, begin, c, rows
+        return new, rows
 
-    def running(state):
-        warming, _, j, _, c, _ = state
-        return warming | ((j < n_iter) & eqxi.unvmap_any(c.active(n_steps)))
+    def kept(j, c):
+        return (j < n_iter) & eqxi.unvmap_any(c.active(n_steps))
 
     zero = jnp.zeros((), jnp.int32)
-    state = (warming_after(zero, start), zero, zero, start, start, rows)
-    _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
+    if warm is None:  # the loop alone: its steps' count stays a constant of the program
+
+        def trip(state):
+            j, c, rows = state
+            c, rows = advance(c, rows, j, n_steps)
+            return j + _CHUNK, c, rows
+
+        j, end, rows = jax.lax.while_loop(lambda s: kept(s[0], s[1]), trip, (zero, start, rows))
+    else:
+        first_step, budget = warm
+
+        def warming_after(i, c):
+            return eqxi.unvmap_any((i < budget) & c.active(first_step))
+
+        def trip(state):
+            warming, i, j, begin, c, rows = state
+            # a warm-up trip's rows land where the first kept trip writes its own
+            new, rows = advance(c, rows, j, jnp.where(warming, first_step, n_steps))
+            # while warming, the members beyond their budget stay where they are
+            c = jax.tree.map(lambda a, b: jnp.where(warming & (i >= budget), b, a), new, c)
+            i = jnp.where(warming, i + _CHUNK, i)
+            j = jnp.where(warming, j, j + _CHUNK)
+            begin = jax.tree.map(lambda a, b: jnp.where(warming, a, b), c, begin)
+            return warming & warming_after(i, c), i, j, begin, c, rows
+
+        def running(state):
+            warming, _, j, _, c, _ = state
+            return warming | kept(j, c)
+
+        state = (warming_after(zero, start), zero, zero, start, start, rows)
+        _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
     done = jnp.arange(n_iter) >= j
     final = (end.t, end.x, end.v, end.phase_code(), end.z)
 
