@@ -199,6 +199,9 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         "needed": d.needed,
         "unconfirmed": d.unconfirmed,
         "search_p_values": {n: f.search_p_value for n, f in d.refits.items()},
+        "searched_nulls": dict(zip(d.calibrated.candidates, d.calibrated.searched_nulls))
+        if d.calibrated is not None
+        else {},
         "ranking": d.ranking,
         "p_values": {n: f.p_value for n, f in d.refits.items()},
         "replicates": d.calibrated.replicates if d.calibrated is not None else None,

@@ -15,7 +15,9 @@ from vfjax._diagnosis._calibration import (
     Calibration,
     _fit_point,
     _NullSource,
+    _searched_nulls,
     calibrate,
+    f_p_values,
     family_p_values,
 )
 from vfjax._diagnosis._cycles import variability_test
@@ -266,6 +268,53 @@ def test_family_p_values_of_a_candidate_shifted_on_every_recording():
     np.testing.assert_allclose(centred_obs, observed - np.median(stat, axis=0))
     # the family-wise value is never below the marginal one
     assert np.all(family >= marginal)
+
+
+class _FakeSearch:
+    """A search whose refit NMSE on each null recording is its row's first number."""
+
+    def __init__(self, per):
+        self.per, self.calls = per, []
+
+    def per_batch(self, k):
+        return self.per
+
+    def __call__(self, k, areas):
+        self.calls.append(len(areas))
+        return np.asarray(areas)[:, 0]
+
+
+def test_a_search_against_null_recordings_searched_alike_stops_at_the_first_that_falls_as_far():
+    """The recording's search takes the control's NMSE 1.0 to 0.5. Null recordings whose
+    search reaches 0.9, 0.8, then 0.5 (as far: it counts), two a batch: with B = 111 at
+    alpha = 0.01 one exceedance rules the search out, so the third null recording ends it
+    (p = 2/4) and the fourth is never searched. A null recording's statistic refit that
+    falls further than its search counts in its place; a failed one counts against; at most
+    ``most`` are searched."""
+    sizes = (201, 4, 3)
+    q_obs = float(f_p_values(1.0, 0.5, *sizes))
+    limit = 0.01 * 112
+    ones = np.ones(6)
+    search = _FakeSearch(per=2)
+    areas = np.array([[0.9], [0.8], [0.5], [0.1], [0.1], [0.1]])
+    exceed, n = _searched_nulls(search, 0, q_obs, (areas, ones, ones), sizes, limit)
+    assert (exceed, n) == (1, 3) and search.calls == [2, 2]
+    # no null recording's search falls as far: every one is searched, p = 1 / (1 + B)
+    search = _FakeSearch(per=4)
+    far = np.full((111, 1), 0.7)
+    exceed, n = _searched_nulls(search, 0, q_obs, (far, np.ones(111), np.ones(111)), sizes, limit)
+    assert (exceed, n) == (0, 111) and sum(search.calls) == 111
+    # the statistic's own refit (0.4) falls further than the search (0.7): it counts
+    refits = np.r_[0.4, np.ones(5)]
+    exceed, n = _searched_nulls(_FakeSearch(1), 0, q_obs, (far[:6], ones, refits), sizes, limit)
+    assert (exceed, n) == (1, 1)
+    search = _FakeSearch(per=4)
+    exceed, n = _searched_nulls(search, 0, q_obs, (far, ones, ones), sizes, limit, most=6)
+    assert (exceed, n) == (0, 6) and search.calls == [4, 2]
+    # a null recording whose statistic failed (NaN control) counts against
+    failed = np.r_[np.nan, np.ones(5)]
+    exceed, n = _searched_nulls(_FakeSearch(3), 0, q_obs, (far[:6], failed, ones), sizes, limit)
+    assert (exceed, n) == (1, 1)
 
 
 def test_candidates_beyond_every_null_recording_rank_by_their_centred_statistic():

@@ -61,6 +61,18 @@ class Calibration(eqx.Module):
             (the ones of lowest profiled cost, `refit_jobs`); 0: no pool. Four find a
             modulation that the first fit imitates with a stretched closure hold, at half
             as much again of the statistic's refits (benchmarks/README.md).
+        search_nulls: where a candidate's search refit (swarms and polish from the score
+            tests' starts) passes the test while its refit from fixed starts does not, the
+            same search runs on the null recordings, one after another until one falls as
+            far (the search fits what the null recordings' variability makes) or all have
+            (`vfjax.diagnosis.Calibrated.search_p_values`): on at most this many (None: all
+            of them, ``replicates``, which decides it either way; 0: none). A search that
+            these leave undecided is named unconfirmed (`vfjax.Diagnosis.unconfirmed`). A
+            search that fits the recording's cycle-to-cycle variability is ruled out by the
+            first null recording whose search falls as far (the fourth, on a no-effect N1
+            of the injection-recovery benchmark); one that every null recording's falls
+            short of costs this many searches (on a 401-frame N1, the modulation's takes
+            about 20 s a null recording on 2 cores: more than 40 minutes for all 111).
     """
 
     replicates: int = eqx.field(default=111, converter=int)
@@ -71,10 +83,15 @@ class Calibration(eqx.Module):
     variability: bool = True
     seed: int = eqx.field(default=0, converter=int)
     pool: int = eqx.field(default=0, converter=int)
+    search_nulls: int | None = eqx.field(default=19, converter=lambda n: n if n is None else int(n))
 
     def __check_init__(self):
         if self.pool < 0:
             raise ValueError(f"Calibration: pool must be >= 0, got {self.pool}")
+        if self.search_nulls is not None and self.search_nulls < 0:
+            raise ValueError(
+                f"Calibration: search_nulls must be >= 0 or None, got {self.search_nulls}"
+            )
         if self.replicates < 1 or self.batch < 1 or self.interval_replicates < 2:
             raise ValueError(
                 "Calibration: replicates and batch must be >= 1 and interval_replicates >= 2, "
@@ -816,14 +833,19 @@ class Calibrated:
             compares with ``null_max_t``, and what orders candidates whose p-values tie (at
             the smallest, 1 / (1 + replicates), when several fall beyond every null
             recording).
-        search_p_values: each candidate's search refit (``estimates``, swarm and polish:
-            a search that the null recordings do not get) put to the same family-wise test:
-            (1 + null recordings whose largest centred statistic reaches the search refit's)
-            / (1 + null recordings); NaN without a search refit or where it is not tested
-            (``tested_searches``). Not evidence (the search
-            chose its basin on the recording, a favour the null recordings' refits from fixed
-            starts do not have), but where it reaches alpha while the calibrated p-value
-            does not, the calibrated refits missed what the search found (`unconfirmed`).
+        search_p_values: each candidate's search refit (``estimates``, swarm and polish)
+            put to the same family-wise test: (1 + null recordings whose largest centred
+            statistic reaches the search refit's) / (1 + null recordings); NaN without a
+            search refit or where it is not tested (``tested_searches``). That alone is no
+            evidence (the search chose its basin on the recording, a favour the null
+            recordings' refits from fixed starts do not have); where it reaches alpha while
+            the candidate's own p-value does not, the null recordings are searched alike
+            (``searched_nulls`` > 0, `Calibration.search_nulls`): then (1 + searched null
+            recordings whose better refit falls as far) / (1 + searched null recordings),
+            times the candidates so searched. Where that reaches alpha the search's fall is
+            the candidate's evidence (``p_values`` and ``nmse`` are the search's).
+        searched_nulls: per candidate, the null recordings its search ran on (0: none;
+            fewer than ``replicates`` where one that fell as far ruled it out early).
         variability: the variability and noise of the null recordings.
         intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
             alpha, else None.
@@ -849,6 +871,7 @@ class Calibrated:
     interval_level: float
     cycles: CycleVariability | None = None
     search_p_values: tuple = ()
+    searched_nulls: tuple = ()
 
     def ranking(self) -> list[str]:
         """The candidates' names, best first: by family-wise p-value, ties (several
@@ -859,6 +882,31 @@ class Calibrated:
             key=lambda k: (self.p_values[k], -self.centred[k], self.nmse[k]),
         )
         return [self.candidates[k] for k in order]
+
+
+def _searched_nulls(search, k, q_obs, nulls, sizes, limit, most=None):
+    """Candidate ``k``'s search refit on the recording (its F-test p-value ``q_obs``)
+    against the same search on the null recordings ``nulls`` (areas, rows in the order they
+    were drawn, and their statistic's control and candidate NMSE), one batch of
+    ``search.per_batch(k)`` at a time: the null recordings whose better refit, the search's
+    or the statistic's, falls as far, and how many were searched (the p-value is (1 + the
+    first) / (1 + the second)). Sequential: stops once ``limit`` exceedances rule the
+    candidate out, or after ``most`` null recordings (None: all). ``sizes``: frames, fitted
+    parameters and the candidate's, of the F test."""
+    areas, controls, refits = nulls
+    exceed, n, per = 0, 0, search.per_batch(k)
+    end = len(areas) if most is None else min(len(areas), most)
+    while n < end and 1 + exceed <= limit:
+        found = search(k, areas[n : min(n + per, end)])
+        best = np.fmin(found, refits[n : n + per])
+        q = f_p_values(controls[n : n + per], best, *sizes)
+        q = np.where(np.isfinite(controls[n : n + per]), q, 0.0)  # a failed null counts against
+        for qi in q:
+            n += 1
+            exceed += bool(qi <= q_obs)
+            if 1 + exceed > limit:
+                break
+    return exceed, n
 
 
 def _dofs(cands) -> np.ndarray:
@@ -882,6 +930,7 @@ def calibrate(
     anchor: dict | None = None,
     refine=None,
     tested_searches=None,
+    search=None,
 ) -> Calibrated:
     """Calibrate each candidate's refit statistic on null recordings of ``result``.
 
@@ -916,7 +965,12 @@ def calibrate(
     ``estimates`` (such as a larger search for the effect the test ranks first).
     ``tested_searches``: per candidate, whether its search refit is tested (default: every
     one there is); the diagnosis tests those that would explain the recording, whose
-    verdict the test can change (`vfjax.Diagnosis.unconfirmed`)."""
+    verdict the test can change (`vfjax.Diagnosis.unconfirmed`). ``search``: a candidate's
+    search run on null recordings (`NullSearch`: called with the candidate's index and the
+    null recordings' areas, returns each one's search refit NMSE; ``per_batch(k)`` null
+    recordings at a time); given, and with ``calibration.search_nulls``, a candidate whose
+    tested search refit passes where its own refit does not is calibrated against null
+    recordings searched alike (`Calibrated.search_p_values`)."""
     cands = list(cands)
     steps = calibration.steps
     groups = refit_groups(result, recording, cands, estimates, steps, anchor, calibration.pool)
@@ -964,15 +1018,18 @@ def calibrate(
     )
     level_count = alpha * (calibration.replicates + 1)  # exceedances that rule a candidate out
     nulls_q, controls = [], []
-    c, b = cc[1:], cb[1:]  # the first batch's null recordings
+    drawn, c, b = rows[1], cc[1:], cb[1:]  # the first batch's null recordings
+    kept = []  # each null recording's areas, controls and refits, for a search
     while len(nulls_q) < calibration.replicates:
         if len(c) == 0:
-            c, b, _ = statistics(source.draw(size, sd_t, sd_a))
+            drawn = source.draw(size, sd_t, sd_a)
+            c, b, _ = statistics(drawn)
         q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
         q = np.where(np.isfinite(c), q, 0.0)  # a failed null counts against
         take = min(size, calibration.replicates - len(nulls_q))
         nulls_q += list(q[:take])
         controls += list(c[:take, main])
+        kept.append((drawn[:take], c[:take], b[:take]))
         c = b = []
         family = family_p_values(q_obs, np.asarray(nulls_q))[0]
         searches = family_p_values(q_search, np.asarray(nulls_q))[0]
@@ -983,6 +1040,31 @@ def calibrate(
     n = len(nulls_q)
     family, marginal, nulls_max, centred = family_p_values(q_obs, nulls_q)
     search_p = np.where(has_search, family_p_values(q_search, nulls_q)[0], math.nan)
+    nmse, searched_nulls = cb[0].copy(), np.zeros(n_cands, int)
+    # a search refit that passes against the null recordings' refits from fixed starts, where
+    # the candidate's own refit does not: the null recordings are searched alike
+    # (Bonferroni over those flagged: the others cannot be named by their search)
+    flagged = np.flatnonzero(has_search & (search_p <= alpha) & (family > alpha))
+    limit = alpha * (n + 1) / max(flagged.size, 1)  # exceedances that rule a search out
+    most = calibration.search_nulls
+    if search is not None and most != 0 and flagged.size and limit >= 1:
+        areas, null_c, null_b = (np.concatenate(x) for x in zip(*kept))
+        for k in flagged:
+            best = min(searched[k], cb[0, k])
+            stat = f_p_values(cc[0, k], best, recording.n_frames, n_fitted, dofs[k])
+            exceed, searched_nulls[k] = _searched_nulls(
+                search,
+                k,
+                float(stat),
+                (areas, null_c[:, k], null_b[:, k]),
+                (recording.n_frames, n_fitted, dofs[k]),
+                limit,
+                most,
+            )
+            if 1 + exceed > limit or searched_nulls[k] == n:  # decided, else unconfirmed
+                search_p[k] = min(1.0, (1 + exceed) / (1 + searched_nulls[k]) * flagged.size)
+            if search_p[k] <= alpha and searched_nulls[k] == n:  # the search's evidence
+                family[k], nmse[k] = search_p[k], best
     group_of = {k: g for g in groups for k in g.owner}
     values = [_values(group_of[k], yb[k][0], c) for k, c in enumerate(cands)]
     intervals = [None] * n_cands
@@ -999,7 +1081,7 @@ def calibrate(
         candidates=tuple(c.name for c in cands),
         control_nmse=float(cc[0, main]),
         controls=tuple(float(x) for x in cc[0]),
-        nmse=tuple(float(x) for x in cb[0]),
+        nmse=tuple(float(x) for x in nmse),
         values=tuple(values),
         f_p_values=tuple(float(x) for x in q_obs),
         p_values=tuple(float(x) for x in family),
@@ -1011,6 +1093,7 @@ def calibrate(
         intervals=tuple(intervals),
         interval_level=calibration.interval,
         search_p_values=tuple(float(x) for x in search_p),
+        searched_nulls=tuple(int(x) for x in searched_nulls),
     )
     if refine is not None:
         estimates = refine(tested)
@@ -1022,7 +1105,8 @@ def calibrate(
             # state at the first frame carries a modulation's history): only a fit in the
             # group's own sampling, where its point is exact, starts the refinement
             same = found is not None and found.sampling.warmup == float(jobs.problem.grid.t_start)
-            if same and found.nmse < cb[0, k]:
+            if (same or k in flagged) and found.nmse < cb[0, k]:  # (the search, where the
+                # null recordings were searched alike: its basin is the evidence)
                 y = _point_of(jobs.problem, found)
             values[k], intervals[k] = _interval(
                 jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands

@@ -13,7 +13,7 @@ from ..terms import AbstractTerm
 from ._calibration import DEFAULT_CALIBRATION, Calibration, calibrate, check_reachable
 from ._candidates import as_candidates
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
-from ._refits import anchor_values, confirm, error, refit_each, refit_starts
+from ._refits import NullSearch, anchor_values, confirm, error, refit_each, refit_starts
 from ._score import score_tests
 from ._verdict import Diagnosis, EffectRefit, explains, verdict_text
 
@@ -120,6 +120,7 @@ def diagnose(
             anchor,
             refine,
             tested_searches=tested,
+            search=NullSearch(base, recording, cands, plan, anchor, criteria.variance),
         )
         if progress:
             print(

@@ -13,7 +13,7 @@ from ..presets import initial_model
 from ..recording import Recording
 from ._candidates import Candidate, extended
 from ._options import DEFAULT_PLAN, RefitPlan
-from ._score import EffectScore
+from ._score import EffectScore, score_tests
 
 
 def refit_starts(
@@ -103,7 +103,7 @@ def refit_with(
 
 def refit_each(
     result: FitResult,
-    recording: Recording,
+    recording: Recording | Sequence[Recording],
     jobs: Sequence[tuple],
     plan: RefitPlan = DEFAULT_PLAN,
     *,
@@ -125,7 +125,8 @@ def refit_each(
 
     Arguments:
         result: the fit being diagnosed.
-        recording: its recording.
+        recording: its recording, or one recording per job (of the same length and frame
+            rate: null recordings simulated from ``result``, searched as it is).
         jobs: ``(candidate or None, starts)`` pairs; a start is a dict of parameter values.
         plan: the refits' settings (`RefitPlan`).
         family: the candidates whose terms the compiled program carries.
@@ -136,6 +137,9 @@ def refit_each(
     cands = [
         None if c is None else c if isinstance(c, Candidate) else Candidate.of(c) for c, _ in jobs
     ]
+    recordings = [recording] * len(jobs) if isinstance(recording, Recording) else list(recording)
+    if len(recordings) != len(jobs):
+        raise ValueError(f"{len(recordings)} recordings for {len(jobs)} jobs: give one per job")
     family = [c for c in cands if c is not None] if family is None else list(family)
     for c in cands:
         if c is not None and not any(f.name == c.name for f in family):
@@ -147,7 +151,7 @@ def refit_each(
         return [
             refit_each(
                 result,
-                recording,
+                rec,
                 [job],
                 plan,
                 family=[c] if c is not None else [],
@@ -155,7 +159,7 @@ def refit_each(
                 warmup=warmup,
                 iterations=iterations,
             )[0]
-            for c, job in zip(cands, jobs)
+            for c, job, rec in zip(cands, jobs, recordings)
         ]
     added = [type(t) for t in wide.terms if not result.model.has(type(t))]
     union = names + tuple(
@@ -182,7 +186,7 @@ def refit_each(
         swarm = dataclasses.replace(swarm, iterations=iterations)
     fits = fit_many(
         models,
-        [recording] * len(models),
+        [recordings[j] for j in owner],
         params=union,
         swarm=swarm,
         polish=plan.polish,
@@ -261,3 +265,57 @@ def confirm(result, recording, jobs, control, fitted, *, top, plan, anchor, fami
 def error(fit: FitResult) -> float:
     """A fit's NMSE for ranking (a non-finite one ranks last)."""
     return fit.nmse if np.isfinite(fit.nmse) else np.inf
+
+
+class NullSearch:
+    """A candidate's search (`refit_each` from its `refit_starts`) run on null recordings
+    as it ran on the recording: on each one, the score tests at the null recording's truth
+    (the fit they are simulated from) give the starts, and the same swarms and polish
+    refit it; several null recordings share one batch of ``plan.batch`` fits.
+
+    Arguments:
+        result: the fit the null recordings are simulated from.
+        recording: the recording (its frame rate and name).
+        cands: the diagnosis's candidates (`Candidate`), the family of its refits.
+        plan: the refits' settings (`RefitPlan`).
+        anchor: values of fitted parameters (`anchor_values`), a second centre.
+        variance: the score tests' variance (`Criteria.variance`).
+    """
+
+    def __init__(self, result, recording, cands, plan, anchor, variance):
+        self.result, self.recording, self.cands = result, recording, list(cands)
+        self.plan, self.anchor, self.variance = plan, anchor, variance
+
+    def _jobs(self, k: int, null: Recording):
+        cand = self.cands[k]
+        fitted = dataclasses.replace(self.result, nmse=_nmse(self.result, null))
+        score = score_tests(fitted, null, self.cands, variance=self.variance)[k]
+        model = self.result.model.with_term(cand.term)
+        begin = refit_starts(cand, model, null, score, self.plan.starts, self.anchor)
+        anchored = [{**begin[0], **self.anchor}] if self.anchor else []
+        return cand, begin + anchored
+
+    def per_batch(self, k: int) -> int:
+        """Null recordings searched per batch for candidate ``k``."""
+        n_starts = len(self._jobs(k, self.recording)[1])
+        return max(1, self.plan.batch // n_starts)
+
+    def __call__(self, k: int, areas: np.ndarray) -> np.ndarray:
+        """Candidate ``k``'s search refit NMSE on each null recording (rows of ``areas``,
+        padded beyond the recording's frames)."""
+        rec = self.recording
+        nulls = [
+            Recording(np.asarray(a[: rec.n_frames]), rec.fps, name=f"{rec.name} (null)")
+            for a in areas
+        ]
+        jobs = [self._jobs(k, null) for null in nulls]
+        fits = refit_each(
+            self.result, nulls, jobs, self.plan, family=self.cands, anchor=self.anchor
+        )
+        return np.array([error(f) for f in fits])
+
+
+def _nmse(result: FitResult, recording: Recording) -> float:
+    """``result``'s NMSE on ``recording``."""
+    residual = result.fitted_gaw(recording) - recording.area
+    return float(np.sum(residual**2) / np.sum(np.square(recording.area)))

@@ -35,16 +35,19 @@ class EffectRefit:
             after the candidate's longer warm-up where that fits better); negative where a
             refit after a longer warm-up ends above the fit's own control.
         values: the effect's fitted parameters (the calibrated refit's).
-        p_value: family-wise p-value, calibrated on null recordings of the fitted model.
+        p_value: family-wise p-value, calibrated on null recordings of the fitted model (of
+            the search's refit, where the null recordings were searched alike and that
+            passes: `vfjax.diagnosis.Calibrated.search_p_values`).
         f_p_value: the F test's p-value of the fall (uncalibrated: the standardisation that
             the calibration compares across candidates).
         marginal_p_value: the calibrated p-value against this candidate's null alone.
         interval: ``{parameter: (low, high)}`` at ``Calibration.interval`` (a parametric
             bootstrap), for a significant effect; None otherwise.
         off_values: the values of its tested parameters that switch it off.
-        search_p_value: the search's refit (``result``) put to the same family-wise test
-            (`vfjax.diagnosis.Calibrated.search_p_values`): not evidence, since the null
-            recordings are not searched alike; NaN where not computed.
+        search_p_value: the search's refit (``result``) put to the test
+            (`vfjax.diagnosis.Calibrated.search_p_values`): against the null recordings'
+            refits from fixed starts, no evidence; where that passes and ``p_value`` does
+            not, against the same search on the null recordings; NaN where not computed.
     """
 
     effect: str
@@ -137,15 +140,17 @@ class Diagnosis:
 
     @property
     def unconfirmed(self) -> list[str]:
-        """Candidates whose search refit passes the calibrated test at alpha, and would
-        explain the recording (it removes `EXPLAINED_SHARE` of the misfit above the noise
-        floor, as an added effect must in `vfjax.workflow.Investigation.outcome`), while
-        their calibrated refit does not pass, best search first: the search reached a basin
-        that the calibrated refits (from fixed starts, as on the null recordings) do not. On
-        a rugged error surface (a pressure modulation that switches closures on and off) the
-        fixed starts miss what the search finds; the search's own p-value is no evidence,
-        as the null recordings get no search, so the effect is neither needed nor ruled
-        out: compare the fits (`vfjax.workflow.extend_from`)."""
+        """Candidates whose search refit passes the test against the null recordings'
+        refits from fixed starts, and would explain the recording (it removes
+        `EXPLAINED_SHARE` of the misfit above the noise floor, as an added effect must in
+        `vfjax.workflow.Investigation.outcome`), while their own refit does not pass and no
+        search of the null recordings decided it, best search first: the search reached a
+        basin that the refits from fixed starts do not, and that alone is no evidence (the
+        search chose its basin on the recording). The diagnosis searches the null
+        recordings alike (`vfjax.Calibration.search_nulls`), which decides it either way,
+        unless that is off or several candidates are so flagged that the null recordings
+        cannot reach alpha for each: then the effect is neither needed nor ruled out, and
+        the fits are there to compare (`vfjax.workflow.extend_from`)."""
         alpha = self.criteria.alpha
         before, floor = self.nmse_before, self.noise_nmse
         flagged = [
@@ -232,6 +237,9 @@ def verdict_text(d: Diagnosis) -> str:
     if d.best is not None:
         f = d.refits.get(d.best)
         p = evidence(d.scores[d.best], f)
+        k = cal.candidates.index(d.best) if cal is not None else None
+        if k is not None and cal.searched_nulls and cal.searched_nulls[k]:
+            against += ", each searched as the recording was"
         text = f"{d.best} is missing (p = {p:.2g}{against})"
         if f is not None:
             # the errors of the fits a user goes on with: the best without the effect and
@@ -322,12 +330,23 @@ def _unconfirmed_text(d: Diagnosis) -> list[str]:
             f"{f.effect} (NMSE {f.result.nmse:.3%} against {f.nmse:.3%}; {_sizes(searched)})"
         )
     listed = ", ".join(found)
+    cal = d.calibrated
+    counts = {
+        cal.searched_nulls[cal.candidates.index(n)]
+        for n in names
+        if cal is not None and cal.searched_nulls
+    }
+    searched = (
+        f"searched alike, {max(counts)} of the null recordings fell short of it, too few to decide"
+        if counts and max(counts) > 0
+        else "the null recordings were not searched alike"
+    )
     return [
         f"Unconfirmed: the search's refits with {listed} reach errors that the calibrated "
         "refits, made from fixed starts on the recording as on every null recording, do "
-        f"not, and lie beyond the null recordings at alpha = {d.criteria.alpha:g}; the "
-        "null recordings are not searched alike, so this is no evidence, but the effect is "
-        "not ruled out either: compare the fits (vfjax.workflow.extend_from)"
+        f"not, and lie beyond the null recordings at alpha = {d.criteria.alpha:g}; "
+        f"{searched}, so this is no evidence, but the effect is not ruled out either: "
+        "compare the fits (vfjax.workflow.extend_from)"
     ]
 
 
