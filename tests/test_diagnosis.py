@@ -231,7 +231,9 @@ def test_shared_gap_case(shared_dir):
     # itself twice, in one batch, each search ends where the recording's did (within the
     # swarms' draws, which differ from one batch slot to another: 0.2 %)
     k = d.calibrated.candidates.index("MucosalDelay")
-    search = NullSearch(result, rec, d.candidates, d.plan, anchor_values(result, rec), "hac")
+    anchor = anchor_values(result, rec)
+    n_starts = [d.plan.batch] * len(d.candidates)  # (sets per_batch, not called here)
+    search = NullSearch(result, rec, d.candidates, d.plan, anchor, "hac", n_starts)
     again = search(k, np.stack([rec.area, rec.area]))
     np.testing.assert_allclose(again, d.refits["MucosalDelay"].result.nmse, rtol=0.01)
     # the investigation's conclusion: the gap explains the recording; without it, the

@@ -120,7 +120,15 @@ def diagnose(
             anchor,
             refine,
             tested_searches=tested,
-            search=NullSearch(base, recording, cands, plan, anchor, criteria.variance),
+            search=NullSearch(
+                base,
+                recording,
+                cands,
+                plan,
+                anchor,
+                criteria.variance,
+                n_starts=[len(starts) for _, starts in jobs[1:]],
+            ),
         )
         if progress:
             print(

@@ -280,16 +280,18 @@ class NullSearch:
         plan: the refits' settings (`RefitPlan`).
         anchor: values of fitted parameters (`anchor_values`), a second centre.
         variance: the score tests' variance (`Criteria.variance`).
+        n_starts: per candidate, the starts of its search on the recording (as many as on
+            each null recording).
     """
 
-    def __init__(self, result, recording, cands, plan, anchor, variance):
+    def __init__(self, result, recording, cands, plan, anchor, variance, n_starts):
         self.result, self.recording, self.cands = result, recording, list(cands)
         self.plan, self.anchor, self.variance = plan, anchor, variance
+        self.n_starts = tuple(n_starts)
 
     def _jobs(self, k: int, null: Recording):
         cand = self.cands[k]
-        fitted = dataclasses.replace(self.result, nmse=_nmse(self.result, null))
-        score = score_tests(fitted, null, self.cands, variance=self.variance)[k]
+        score = score_tests(self.result, null, self.cands, variance=self.variance)[k]
         model = self.result.model.with_term(cand.term)
         begin = refit_starts(cand, model, null, score, self.plan.starts, self.anchor)
         anchored = [{**begin[0], **self.anchor}] if self.anchor else []
@@ -297,8 +299,7 @@ class NullSearch:
 
     def per_batch(self, k: int) -> int:
         """Null recordings searched per batch for candidate ``k``."""
-        n_starts = len(self._jobs(k, self.recording)[1])
-        return max(1, self.plan.batch // n_starts)
+        return max(1, self.plan.batch // self.n_starts[k])
 
     def __call__(self, k: int, areas: np.ndarray) -> np.ndarray:
         """Candidate ``k``'s search refit NMSE on each null recording (rows of ``areas``,
@@ -313,9 +314,3 @@ class NullSearch:
             self.result, nulls, jobs, self.plan, family=self.cands, anchor=self.anchor
         )
         return np.array([error(f) for f in fits])
-
-
-def _nmse(result: FitResult, recording: Recording) -> float:
-    """``result``'s NMSE on ``recording``."""
-    residual = result.fitted_gaw(recording) - recording.area
-    return float(np.sum(residual**2) / np.sum(np.square(recording.area)))
