@@ -15,7 +15,7 @@ from ._candidates import as_candidates
 from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
 from ._refits import NullSearch, anchor_values, confirm, error, refit_each, refit_starts
 from ._score import score_tests
-from ._verdict import Diagnosis, EffectRefit, explains, verdict_text
+from ._verdict import Diagnosis, EffectRefit, error_before, explains, verdict_text
 
 
 def diagnose(
@@ -107,7 +107,7 @@ def diagnose(
 
         # the search refits worth testing: those that would explain the recording, the only
         # ones the test can name unconfirmed (testing others keeps null recordings coming)
-        before = min(result.nmse, control.nmse)
+        before = error_before(result, control)
         floor = _noise_nmse(recording, [result, control, *fitted_each], sse_scale)
         tested = [explains(before, f.nmse, floor) for f in fitted_each]
         cal = calibrate(
@@ -165,6 +165,7 @@ def diagnose(
         ranking = sorted(by_name, key=lambda n: (by_name[n].p_value, -by_name[n].statistic))
         needed = [n for n in ranking if by_name[n].p_value < level]
     fits = [result] + ([control] if control else []) + [f.result for f in refits.values()]
+    # from the final fits: the confirming refits may have replaced the control and refits
     noise_nmse = _noise_nmse(recording, fits, sse_scale)
     diag = Diagnosis(
         result,

@@ -20,6 +20,12 @@ def explains(before: float, after: float, floor: float) -> bool:
     return before - after >= EXPLAINED_SHARE * (before - floor)
 
 
+def error_before(result, control) -> float:
+    """The NMSE the falls are measured from: the fit's (``result``), or the control refit's
+    (``control``, the model refitted without any effect; None: no refit) if lower."""
+    return min(result.nmse, control.nmse) if control is not None else result.nmse
+
+
 @dataclasses.dataclass(frozen=True)
 class EffectRefit:
     """The refit with one candidate effect, and its calibrated test.
@@ -129,7 +135,7 @@ class Diagnosis:
     @property
     def nmse_before(self) -> float:
         """The error the falls are measured from: the fit's, or the control refit's if lower."""
-        return min(self.result.nmse, self.control.nmse) if self.control else self.result.nmse
+        return error_before(self.result, self.control)
 
     @property
     def variability(self):
