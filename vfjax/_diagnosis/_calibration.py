@@ -439,14 +439,21 @@ def _statistics(problem, y0, starts, frees, bases, pool, data, steps: int, mesh)
         yj, cj = jax.vmap(job)(starts, frees[1:], bases[1:], ranks, job_owner)
 
         def control_from(cand):
-            mine = jnp.where((job_owner == cand) & (cand >= 0), cj, jnp.inf)
+            mine = jnp.where(job_owner == cand, cj, jnp.inf)
             best = jnp.argmin(mine)
             y, cost = levenberg_marquardt(
                 pc.residual, jnp.where(kept, yj[best], y0), bases[0], steps
             )
             return y, jnp.where(jnp.isfinite(mine[best]), cost, jnp.inf)
 
-        ys, costs = jax.vmap(control_from)(members)
+        def padding(cand):
+            return jnp.zeros_like(yc), jnp.asarray(jnp.inf, cc.dtype)
+
+        # one candidate after another: ``members`` is the same on every recording, so a
+        # padding slot (-1) skips its refit instead of running it masked beside the others
+        ys, costs = jax.lax.map(
+            lambda cand: jax.lax.cond(cand >= 0, control_from, padding, cand), members
+        )
         best = jnp.argmin(costs)
         better = costs[best] < cc
         yc, cc = jnp.where(better, ys[best], yc), jnp.where(better, costs[best], cc)
