@@ -586,9 +586,19 @@ def test_frame_counts_are_integers_and_time_shifts_are_data():
             for shift in (0.002, 0.003, np.float64(0.004)):
                 vfjax.simulate(m, FPS, 51, time_shift=shift, max_time_shift=0.01)
             vfjax.simulate(m.set(K=7e5), FPS, 51, time_shift=0.002, max_time_shift=0.01)
+            # another frame count and frame rate within the same buckets (frames padded to
+            # 128, the loop's 480-512 iterations to 512) are data too
+            b = vfjax.simulate(m, FPS, 60, max_time_shift=0.01)
+            c = vfjax.simulate(m, 5000.0, 51, max_time_shift=0.01)
     finally:
         logging.getLogger("jax").removeHandler(handler)
     assert compiled == []
+    assert b.area.shape == (60,) and c.area.shape == (51,) and b.complete and c.complete
+    # the frames within the bucket are those of the simulation alone: 60 frames begin with
+    # the 51, and each frame is the motion at its own time (the dense output's)
+    np.testing.assert_array_equal(b.area[:51], vfjax.simulate(m, FPS, 51, max_time_shift=0.01).area)
+    np.testing.assert_allclose(c.time, np.arange(51) / 5000.0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(c.displacement, c.dense.displacement(c.time), rtol=1e-13)
 
 
 def test_integer_parameter_leaves_are_refused():

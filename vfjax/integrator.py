@@ -470,15 +470,33 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
     return body
 
 
-def _integrate_scan(model, start, *, h, n_steps, n_iter, origin):
+def _integrate_scan(model, start, *, h, n_steps, n_iter, origin, limit=None):
     """The iterations as a `lax.scan` of fixed length: every member of a batch runs ``n_iter``
-    of them, idling once done. Differentiable in both modes."""
+    of them, idling once done (and from iteration ``limit`` on, where it is given: the budget
+    as data, within the program's ``n_iter``). Differentiable in both modes."""
     body = _iteration(model, h, n_steps, origin)
-    end, rows = jax.lax.scan(body, start, None, length=n_iter, unroll=_UNROLL)
+    if limit is None:
+        end, rows = jax.lax.scan(body, start, None, length=n_iter, unroll=_UNROLL)
+        return end, _batch_first(rows)
+
+    def limited(c, i):
+        new, row = body(c, None)
+        idle = i >= limit  # as an iteration after the end: the carry and its row unchanged
+        new = jax.tree.map(lambda a, b: jnp.where(idle, a, b), c, new)
+        row = jax.tree.map(lambda a, b: jnp.where(idle, a, b), _row(c), row)
+        return new, row
+
+    iterations = jnp.arange(n_iter, dtype=jnp.int32)
+    end, rows = jax.lax.scan(limited, start, iterations, unroll=_UNROLL)
     return end, _batch_first(rows)
 
 
-def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None):
+def _row(c: _Carry) -> tuple:
+    """The dense-output row of the carry ``c``, as an iteration that ends there writes it."""
+    return (c.t, c.x, c.v, c.phase_code(), c.z)
+
+
+def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None, limit=None):
     """As `_integrate_scan`, bit for bit, but stopping once every member of the batch is done.
 
     A hold takes one iteration, so a recording that closes for half of each cycle needs about
@@ -493,8 +511,11 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None):
     to whole trips). It runs through the same loop, so the iteration's body is compiled once.
     Returns ``(begin, end, rows)``, ``begin`` being the state where the rows start; without
     ``warm``, ``(end, rows)``.
+
+    ``limit``: the iterations to run at most (a multiple of `_CHUNK`, traced), where fewer
+    than the ``n_iter`` rows; the rows after it hold the final state.
     """
-    final = (start.t, start.x, start.v, start.phase_code(), start.z)
+    final = _row(start)
     rows = jax.tree.map(lambda y: jnp.zeros((n_iter,) + jnp.shape(y), jnp.result_type(y)), final)
 
     def advance(c, rows, j, last_step):
@@ -508,7 +529,7 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None):
         return new, rows
 
     def kept(j, c):
-        return (j < n_iter) & eqxi.unvmap_any(c.active(n_steps))
+        return (j < (n_iter if limit is None else limit)) & eqxi.unvmap_any(c.active(n_steps))
 
     zero = jnp.zeros((), jnp.int32)
     if warm is None:  # the loop alone: its steps' count stays a constant of the program
@@ -543,7 +564,7 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None):
         state = (warming_after(zero, start), zero, zero, start, start, rows)
         _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
     done = jnp.arange(n_iter) >= j
-    final = (end.t, end.x, end.v, end.phase_code(), end.z)
+    final = _row(end)
 
     def fill(f, r):
         return jnp.where(jnp.reshape(done, done.shape + (1,) * jnp.ndim(f)), f, r)
@@ -563,18 +584,22 @@ def _batch_first(rows):
 
 
 @eqx.filter_custom_jvp
-def _integrate(model, start, *, h, n_steps, n_iter, origin):
+def _integrate(model, start, *, h, n_steps, n_iter, origin, limit=None):
     """The integration: end state and per-iteration rows (t, x, v, phase code, internal
     states).
 
     Evaluated by the early-stopping `_integrate_loop`; differentiated (forward, and so reverse)
     through `_integrate_scan`, which computes the same values."""
-    return _integrate_loop(model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=origin)
+    return _integrate_loop(
+        model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=origin, limit=limit
+    )
 
 
 @_integrate.def_jvp
-def _integrate_jvp(primals, tangents, *, h, n_steps, n_iter, origin):
-    scan = functools.partial(_integrate_scan, h=h, n_steps=n_steps, n_iter=n_iter, origin=origin)
+def _integrate_jvp(primals, tangents, *, h, n_steps, n_iter, origin, limit=None):
+    scan = functools.partial(
+        _integrate_scan, h=h, n_steps=n_steps, n_iter=n_iter, origin=origin, limit=limit
+    )
     return eqx.filter_jvp(scan, primals, tangents)
 
 
@@ -684,10 +709,11 @@ def simulate(
     within one simulation, and moves nothing else (so a fit can read every shift from one
     simulation's dense output).
 
-    Jit-compiled, once per model structure, frame count and iteration budget (the grid's
-    steps over the simulated time plus ``max_events``, rounded up to a multiple of 16). The
-    frame rate, step, ``t_start``, ``max_time_shift``, the model's leaves, ``time_shift``
-    and the initial state are data: new values within the same budget reuse the program.
+    Jit-compiled, once per model structure, `length_bucket` of the frame count and size
+    class of the iteration budget (`iteration_bucket` of the grid's steps over the simulated
+    time plus ``max_events``). The frame rate, step, ``t_start``, ``max_time_shift``, the
+    frame count and budget within their buckets, the model's leaves, ``time_shift`` and the
+    initial state are data: new values within the same buckets reuse the program.
     Differentiable (forward and reverse) in every array leaf of ``model`` and in
     ``time_shift``; vmappable over models with batched leaves.
 
@@ -781,8 +807,9 @@ def simulate(
                 "frames must lie in the integrated interval (raise max_time_shift)"
             )
     x_init = None if initial_displacement is None else jnp.asarray(initial_displacement, float)
-    # the frame rate, step, step count, start and shift range are data (traced): only the
-    # frame count, the iteration budget and the mode shape the compiled program
+    # the frame rate, step, step count, start, shift range, frame count and budget are data
+    # (traced): only their buckets and the mode shape the compiled program
+    i32 = jnp.int32
     sim = _simulate(
         model,
         time_shift,
@@ -790,13 +817,16 @@ def simulate(
         jnp.asarray(initial_velocity, dtype=float),
         jnp.asarray(fps, dtype=float),
         jnp.asarray(h, dtype=float),
-        jnp.asarray(n_steps, dtype=jnp.int32),
+        jnp.asarray(n_steps, dtype=i32),
         jnp.asarray(t_start, dtype=float),
         jnp.asarray(max_time_shift, dtype=float),
-        n_frames=n_frames,
-        n_iter=n_iter,
+        jnp.asarray(n_frames, dtype=i32),
+        jnp.asarray(n_iter, dtype=i32),
+        n_out=length_bucket(n_frames),
+        n_rows=iteration_bucket(n_iter),
         reverse_mode=bool(reverse_mode),
     )
+    sim = _first_frames(sim, n_frames)
     if throw:
         failed = sim.result != RESULTS.successful
         if isinstance(failed, jax.core.Tracer):
@@ -807,6 +837,28 @@ def simulate(
                 model.check()  # names the parameter, where it is concrete
             raise SimulationError(result_message(sim.result))
     return sim
+
+
+def iteration_bucket(n_iter: int) -> int:
+    """The loop length a simulation of ``n_iter`` iterations (a multiple of `_CHUNK`) is
+    compiled for: the next of 2^k and 3 * 2^(k - 1) (so at most a third more). Within it
+    the budget is data; an early-stopping loop ends where it ends, a differentiated scan runs
+    the bucket's idle iterations too."""
+    n = max(int(n_iter), _CHUNK)
+    k = (n - 1).bit_length()
+    return 3 << (k - 2) if k >= 2 and (3 << (k - 2)) >= n else 1 << k
+
+
+@eqx.filter_jit
+def _first_frames(sim: Simulation, n_frames: int) -> Simulation:
+    """``sim`` with its per-frame arrays cut to the first ``n_frames`` (one small program per
+    bucket and count, in place of a simulation's program per count)."""
+    fields = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
+    return eqx.tree_at(
+        lambda s: [getattr(s, f) for f in fields],
+        sim,
+        [getattr(sim, f)[:n_frames] for f in fields],
+    )
 
 
 @eqx.filter_jit
@@ -820,20 +872,27 @@ def _simulate(
     n_steps,
     t_start,
     max_time_shift,
-    *,
     n_frames,
     n_iter,
+    *,
+    n_out,
+    n_rows,
     reverse_mode,
 ) -> Simulation:
+    """`simulate`'s program: ``n_frames`` frames (traced) padded to ``n_out``, ``n_iter``
+    iterations at most (traced) in ``n_rows`` rows."""
     x_init = model.contact_displacement if x_init is None else x_init
     x_init = jnp.asarray(x_init, dtype=float)
     valid_model = model.is_valid() & jnp.isfinite(x_init) & jnp.isfinite(v_init)
     start = _start(model, x_init, v_init)
     integrate = _integrate if reverse_mode else _integrate_loop
-    end, rows = integrate(model, start, h=h, n_steps=n_steps, n_iter=n_iter, origin=t_start)
+    end, rows = integrate(
+        model, start, h=h, n_steps=n_steps, n_iter=n_rows, origin=t_start, limit=n_iter
+    )
     shift_ok = (time_shift >= -t_start - 1e-12) & (time_shift <= max_time_shift + 1e-12)
-    times = t_start + time_shift + jnp.arange(n_frames) / fps
-    return _sampled(model, start, end, rows, times, n_steps, valid_model, shift_ok)
+    times = t_start + time_shift + jnp.arange(n_out) / fps
+    counted = jnp.arange(n_out) < n_frames
+    return _sampled(model, start, end, rows, times, n_steps, valid_model, shift_ok, counted)
 
 
 def _start(model, x_init, v_init) -> _Carry:
