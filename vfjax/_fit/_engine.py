@@ -81,7 +81,8 @@ def lanes(n_fits: int, n_particles: int, n_devices: int) -> int:
 
 
 def _swarm_costs(batch, active, positions, mesh, width: int):
-    """The swarm cost of every particle of every fit, (fits, n, d) -> (fits, n).
+    """The swarm cost of every particle of every fit, (fits, n, d) -> (fits, n), and the
+    rest of each particle's polish point (its profiled time shift and S), (fits, n, a).
 
     Each device takes an equal share of every fit's particles (all of them without a
     ``mesh``) and lays them out fit after fit; it simulates them ``width`` at a time
@@ -90,6 +91,7 @@ def _swarm_costs(batch, active, positions, mesh, width: int):
     skipped; a padding particle's cost is inf. A particle's cost does not depend on the
     batch: its lane is in a full SIMD vector of a vmap of the same code whatever the batch."""
     n_fits, n, d = positions.shape
+    n_aux = batch.n_profiled
     n_dev = 1 if mesh is None else mesh.devices.size
     per = n // n_dev
     share = n_fits * per
@@ -106,13 +108,13 @@ def _swarm_costs(batch, active, positions, mesh, width: int):
 
             def run():
                 problems = jax.tree.map(lambda a: a[fit], batch)
-                cost = jax.vmap(lambda p, zi: p.swarm_cost(zi))(problems, z)
-                return jnp.where(on, cost, jnp.inf)
+                cost, rest = jax.vmap(lambda p, zi: p.swarm_cost(zi))(problems, z)
+                return jnp.where(on, cost, jnp.inf), rest
 
-            skip = jnp.full(on.shape, jnp.inf, z.dtype)
+            skip = jnp.full(on.shape, jnp.inf, z.dtype), jnp.zeros(on.shape + (n_aux,), z.dtype)
             return jax.lax.cond(jnp.any(on), run, lambda: skip)
 
-        return jax.lax.map(chunk, (x[0], owner, live))[None]
+        return jax.tree.map(lambda a: a[None], jax.lax.map(chunk, (x[0], owner, live)))
 
     if mesh is None:
         out = costs(x, owner, live)
@@ -121,18 +123,22 @@ def _swarm_costs(batch, active, positions, mesh, width: int):
         out = jax.shard_map(
             costs, mesh=mesh, in_specs=(part, whole, whole), out_specs=part, check_vma=False
         )(x, owner, live)
-    out = out.reshape(n_dev, chunks * width)[:, :share].reshape(n_dev, n_fits, per)
-    return out.transpose(1, 0, 2).reshape(n_fits, n)
+    cost, rest = out
+    cost = cost.reshape(n_dev, chunks * width)[:, :share].reshape(n_dev, n_fits, per)
+    rest = rest.reshape(n_dev, chunks * width, n_aux)[:, :share].reshape(n_dev, n_fits, per, -1)
+    return cost.transpose(1, 0, 2).reshape(n_fits, n), rest.transpose(1, 0, 2, 3).reshape(
+        n_fits, n, n_aux
+    )
 
 
 @eqx.filter_jit
-def _swarm_start(lowers, uppers, keys, swarm: Swarm):
+def _swarm_start(lowers, uppers, keys, swarm: Swarm, n_aux: int):
     """Every fit's swarm scattered over its box, particle 0 at the starting model, at rest
     and not yet evaluated (no simulation: the first chunk evaluates them)."""
     positions, keys = jax.vmap(lambda lo, hi, k: scatter(lo, hi, swarm.size, k, 0 * lo))(
         lowers, uppers, keys
     )
-    return jax.vmap(unvisited)(positions, keys)
+    return jax.vmap(lambda x, k: unvisited(x, k, n_aux))(positions, keys)
 
 
 @eqx.filter_jit
@@ -187,7 +193,7 @@ def _particle_mesh(swarm: Swarm):
 POLISH_SLICE = 2
 
 
-def _polish_slices(batch, active, positions, points, from_point, polish: Polish | None):
+def _polish_slices(batch, active, found, points, from_point, polish: Polish | None):
     """`_polish_batch` of a batch (padded to a multiple of `POLISH_SLICE` fits), one slice of
     `POLISH_SLICE` fits per call, the outputs joined in the batch's order. A call polishes
     its fits to the end in one compiled solve; the host is reached between slices only."""
@@ -197,7 +203,7 @@ def _polish_slices(batch, active, positions, points, from_point, polish: Polish 
     # the leaves as host arrays, whose slices are views (a slice of a jax.Array is an op)
     host = jax.tree.map(
         lambda x: np.asarray(x) if eqx.is_array(x) else x,
-        (batch, active, positions, points, from_point),
+        (batch, active, found, points, from_point),
     )
     parts = []
     for start in range(0, n, POLISH_SLICE):
@@ -215,19 +221,20 @@ def _polish_slices(batch, active, positions, points, from_point, polish: Polish 
 # computes alone (a vmapped batch rounds differently from a batch of one). Padding fits
 # (``active`` False) are skipped. Where a fit starts (its swarm's best or an earlier stage's
 # point) is data: one program serves the first polish and every later stage of a length
-# bucket.
+# bucket. The swarm's best comes with its polish point and cost (`Problem.swarm_cost`), so
+# that only an earlier stage's point is simulated before the solve.
 @eqx.filter_jit
-def _polish_batch(batch, active, positions, points, from_point, polish: Polish | None):
-    """Each fit's polish from its swarm's best ``positions`` or, where ``from_point``, from
-    ``points`` (full points of the polish's coordinates: an earlier stage's): the start's
-    coordinates and NMSE, then (``polish`` not None) the solver's best point, its NMSE, steps
-    and result."""
+def _polish_batch(batch, active, found, points, from_point, polish: Polish | None):
+    """Each fit's polish from its swarm's best ``found`` (its polish points and NMSEs) or,
+    where ``from_point``, from ``points`` (full points of the polish's coordinates: an
+    earlier stage's): the start's coordinates and NMSE, then (``polish`` not None) the
+    solver's best point, its NMSE, steps and result."""
 
     def one(args):
-        p, live, z, y_given, given = args
+        p, live, (y_found, cost_found), y_given, given = args
 
         def swarm_start():
-            return p.start(z)
+            return y_found, cost_found
 
         def point_start():
             cost = jnp.sum(p.residual(y_given) ** 2)
@@ -249,7 +256,7 @@ def _polish_batch(batch, active, positions, points, from_point, polish: Polish |
         )
         return jax.lax.cond(live, solve, lambda: skip)
 
-    return jax.lax.map(one, (batch, active, positions, points, from_point))
+    return jax.lax.map(one, (batch, active, found, points, from_point))
 
 
 def _result_name(result, index) -> str:
@@ -486,7 +493,8 @@ def fit_many(
     t0 = time.perf_counter()
     mesh = _particle_mesh(swarm)
     width = lanes(n_fits + pad, swarm.size, 1 if mesh is None else mesh.devices.size)
-    states = _replicated(_swarm_start(lowers, uppers, keys, program), mesh)
+    n_aux = problems[0].n_profiled
+    states = _replicated(_swarm_start(lowers, uppers, keys, program, n_aux), mesh)
     traces, times = [], []
     done = 0  # evaluations: the initial positions, then one per iteration
     while done < swarm.iterations + 1:
@@ -509,10 +517,15 @@ def fit_many(
 
     # Stage 2: the polish, `POLISH_SLICE` fits per call of one compiled solve.
     t1 = time.perf_counter()
-    found = states.global_position
+    # each swarm's best as a polish point (its profiled shift and S beside it) and its NMSE
+    found = (
+        jnp.concatenate([states.global_position, states.global_aux], axis=1),
+        states.global_cost,
+    )
+    n_fits_padded = found[1].shape[0]
     n_y = problems[0].point_size
-    no_points = jnp.zeros((found.shape[0], n_y), found.dtype)
-    from_swarm = jnp.zeros(found.shape[0], bool)
+    no_points = jnp.zeros((n_fits_padded, n_y), found[1].dtype)
+    from_swarm = jnp.zeros(n_fits_padded, bool)
     if not windows:
         polished = _polish_slices(batch, active, found, no_points, from_swarm, polish)
     else:

@@ -222,8 +222,16 @@ class Problem(eqx.Module):
         return jnp.where(ok, costs[i], jnp.inf), shifts[i] / self.period, s[i]
 
     def swarm_cost(self, z_phys):
-        """The swarm's cost of a point of the physical parameters (shift and S profiled)."""
-        return self.profile(z_phys)[0]
+        """The swarm's cost of a point of the physical parameters (shift and S profiled),
+        and the rest of its polish point (`start`'s: the shift and log(S / S_ref))."""
+        y, cost = self.start(z_phys)
+        return cost, y[z_phys.shape[0] :]
+
+    @property
+    def n_profiled(self) -> int:
+        """The polish point's coordinates that the swarm's profile finds: the time shift
+        and, if fitted, log(S / S_ref)."""
+        return 2 if self.fit_s else 1
 
     def residual(self, y):
         """Residuals whose sum of squares is the NMSE; y = (z..., log S) or z.

@@ -20,14 +20,18 @@ from ._options import Swarm
 
 
 class SwarmState(NamedTuple):
-    """Positions, velocities and bests of a swarm (all in the search space)."""
+    """Positions, velocities and bests of a swarm (all in the search space), with what the
+    cost function found beside each best's cost (``aux``: for a fit, the rest of the
+    polish's point, the profiled time shift and S)."""
 
     position: Array  # (n, d)
     velocity: Array  # (n, d)
     best_position: Array  # (n, d) personal bests
     best_cost: Array  # (n,)
+    best_aux: Array  # (n, a)
     global_position: Array  # (d,)
     global_cost: Array  # ()
+    global_aux: Array  # (a,)
     key: Array
 
 
@@ -50,17 +54,21 @@ def scatter(lower, upper, n_particles: int, key, start=None):
     return position, key
 
 
-def unvisited(position, key) -> SwarmState:
-    """A swarm about to evaluate ``position`` (n, d), at rest: no particle has a cost yet.
-    Its first iteration (`run_chunk`) evaluates the positions and makes them the bests."""
+def unvisited(position, key, n_aux: int = 0) -> SwarmState:
+    """A swarm about to evaluate ``position`` (n, d), at rest: no particle has a cost yet
+    (nor ``n_aux`` auxiliary values). Its first iteration (`run_chunk`) evaluates the
+    positions and makes them the bests."""
     inf = jnp.full(position.shape[:1], jnp.inf, position.dtype)
+    aux = jnp.zeros(position.shape[:1] + (n_aux,), position.dtype)
     return SwarmState(
         position=position,
         velocity=jnp.zeros_like(position),
         best_position=position,
         best_cost=inf,
+        best_aux=aux,
         global_position=position[0],
         global_cost=inf[0],
+        global_aux=aux[0],
         key=key,
     )
 
@@ -85,19 +93,22 @@ def move(settings: Swarm, lower, upper, state: SwarmState):
     return jnp.clip(x, lower, upper), v, key
 
 
-def settle(state: SwarmState, cost) -> SwarmState:
-    """The swarm once its positions are evaluated (costs ``cost``): personal and global
-    bests updated."""
+def settle(state: SwarmState, cost, aux) -> SwarmState:
+    """The swarm once its positions are evaluated (costs ``cost``, auxiliary values
+    ``aux``): personal and global bests updated."""
     cost = _finite_or_inf(cost)
     better = cost < state.best_cost
     best_position = jnp.where(better[:, None], state.position, state.best_position)
     best_cost = jnp.where(better, cost, state.best_cost)
+    best_aux = jnp.where(better[:, None], aux, state.best_aux)
     i = jnp.argmin(best_cost)
     return state._replace(
         best_position=best_position,
         best_cost=best_cost,
+        best_aux=best_aux,
         global_position=best_position[i],
         global_cost=best_cost[i],
+        global_aux=best_aux[i],
     )
 
 
@@ -109,12 +120,13 @@ def run_chunk(batch_cost: Callable, lowers, uppers, settings: Swarm, states, liv
     initial positions, so a search of N iterations is N + 1 evaluations, the last move
     unused.
 
-    ``batch_cost`` maps the positions of every swarm, (fits, n, d), to their costs in one
-    call (one batched simulation of every particle of every fit). Returns the states and
-    each swarm's best cost after each iteration, (fits, chunk)."""
+    ``batch_cost`` maps the positions of every swarm, (fits, n, d), to their costs and
+    auxiliary values, (fits, n) and (fits, n, a), in one call (one batched simulation of
+    every particle of every fit). Returns the states and each swarm's best cost after each
+    iteration, (fits, chunk)."""
 
     def iteration(s):
-        evaluated = jax.vmap(settle)(s, batch_cost(s.position))
+        evaluated = jax.vmap(settle)(s, *batch_cost(s.position))
         x, v, keys = jax.vmap(lambda lo, hi, st: move(settings, lo, hi, st))(
             lowers, uppers, evaluated
         )
