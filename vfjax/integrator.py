@@ -846,18 +846,22 @@ def iteration_bucket(n_iter: int) -> int:
     the bucket's idle iterations too."""
     n = max(int(n_iter), _CHUNK)
     k = (n - 1).bit_length()
-    return 3 << (k - 2) if k >= 2 and (3 << (k - 2)) >= n else 1 << k
+    return 3 << (k - 2) if (3 << (k - 2)) >= n else 1 << k
+
+
+#: The `Simulation` fields with one entry per frame (cut to a frame count after a program
+#: that pads the frames to a bucket).
+_PER_FRAME = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
 
 
 @eqx.filter_jit
 def _first_frames(sim: Simulation, n_frames: int) -> Simulation:
     """``sim`` with its per-frame arrays cut to the first ``n_frames`` (one small program per
     bucket and count, in place of a simulation's program per count)."""
-    fields = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
     return eqx.tree_at(
-        lambda s: [getattr(s, f) for f in fields],
+        lambda s: [getattr(s, f) for f in _PER_FRAME],
         sim,
-        [getattr(sim, f)[:n_frames] for f in fields],
+        [getattr(sim, f)[:n_frames] for f in _PER_FRAME],
     )
 
 
@@ -1088,11 +1092,10 @@ def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift=0.0)
     shift = jnp.asarray(float(time_shift))
     sim = simulate_frames(model, sampled_grid(sampling), shift, n_out=n_out, n_rows=n_rows)
     n = sampling.n_frames
-    per_frame = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
     # the recording's frames cut off the bucket on the host (a device slice would compile a
     # program per frame count)
     return eqx.tree_at(
-        lambda s: [getattr(s, f) for f in per_frame],
+        lambda s: [getattr(s, f) for f in _PER_FRAME],
         sim,
-        [np.asarray(getattr(sim, f))[:n] for f in per_frame],
+        [np.asarray(getattr(sim, f))[:n] for f in _PER_FRAME],
     )

@@ -123,12 +123,13 @@ def _swarm_costs(batch, active, positions, mesh, width: int):
         out = jax.shard_map(
             costs, mesh=mesh, in_specs=(part, whole, whole), out_specs=part, check_vma=False
         )(x, owner, live)
-    cost, rest = out
-    cost = cost.reshape(n_dev, chunks * width)[:, :share].reshape(n_dev, n_fits, per)
-    rest = rest.reshape(n_dev, chunks * width, n_aux)[:, :share].reshape(n_dev, n_fits, per, -1)
-    return cost.transpose(1, 0, 2).reshape(n_fits, n), rest.transpose(1, 0, 2, 3).reshape(
-        n_fits, n, n_aux
-    )
+
+    def per_fit(a):  # (devices, chunks, width, ...) -> (fits, n, ...)
+        tail = a.shape[3:]
+        a = a.reshape(n_dev, chunks * width, *tail)[:, :share].reshape(n_dev, n_fits, per, *tail)
+        return jnp.swapaxes(a, 0, 1).reshape(n_fits, n, *tail)
+
+    return jax.tree.map(per_fit, out)
 
 
 @eqx.filter_jit
@@ -522,10 +523,9 @@ def fit_many(
         jnp.concatenate([states.global_position, states.global_aux], axis=1),
         states.global_cost,
     )
-    n_fits_padded = found[1].shape[0]
     n_y = problems[0].point_size
-    no_points = jnp.zeros((n_fits_padded, n_y), found[1].dtype)
-    from_swarm = jnp.zeros(n_fits_padded, bool)
+    no_points = jnp.zeros((n_fits + pad, n_y), found[0].dtype)
+    from_swarm = jnp.zeros(n_fits + pad, bool)
     if not windows:
         polished = _polish_slices(batch, active, found, no_points, from_swarm, polish)
     else:
