@@ -13,6 +13,7 @@ import pytest
 import vfjax
 from vfjax import Polish, Swarm, fit, fit_many
 from vfjax._fit._first import _settled_or_first
+from vfjax.presets import PRESSURE_KEY
 from vfjax.recording import Recording, load_recording
 
 FPS = 4000.0
@@ -199,7 +200,8 @@ def test_swarm_cost_is_the_best_shift_of_direct_simulations():
     truth = vfjax.preset("N3")
     rec = _recording(truth, t_start=0.0237, noise_px=1.0)
     problem = _problem(_start(truth), rec)
-    z = np.array([0.1, -0.2])
+    assert problem.names == ("K", "C_f", "t_c", "P_s")  # t_c and P_s held
+    z = np.array([0.1, -0.2, 0.0, 0.0])
     cost, shift, s = eqx.filter_jit(lambda p, z: p.profile(z))(problem, z)
     shape = eqx.filter_jit(lambda p, zz: p.shape(zz))  # one program for every shift
     direct = []
@@ -230,8 +232,10 @@ def test_lm_linearisation_is_the_residuals_jacobian():
     truth = vfjax.preset("N1")
     rec = _recording(truth, t_start=0.031)
     problem = _problem(_start(truth), rec)
-    y = np.array([-0.2, 0.3, 0.4, -0.1])
+    # K, C_f, the held t_c and P_s, the time shift and log S
+    y = np.array([-0.2, 0.3, 0.0, 0.0, 0.4, -0.1])
     jac = np.asarray(eqx.filter_jit(jax.jacfwd(residual))(y, problem))
+    assert not jac[:, 2:4].any() and np.all(np.linalg.norm(jac[:, [0, 1, 4, 5]], axis=0) > 0)
     direct = eqx.filter_jit(lambda y, p: jax.jacfwd(p.residual)(y))(y, problem)
     np.testing.assert_allclose(jac, np.asarray(direct), rtol=1e-10, atol=1e-14)
     h = 1e-6
@@ -258,7 +262,9 @@ def _compilations():
 
 def test_a_new_length_and_frame_rate_compile_nothing_new():
     """After one fit, a recording of another length (same bucket), frame rate and f0 gets its
-    starting model and its fit through the same compiled programs: no compilation at all."""
+    starting model and its fit through the same compiled programs: no compilation at all;
+    nor do fits of other parameters of the paper's model (the closure duration from 0, in a
+    linear coordinate, and the pressure), which run the same programs."""
     truth = vfjax.preset("N3")
     swarm = Swarm(size=8, iterations=4, chunk=4)
     polish = Polish(max_steps=3)
@@ -275,8 +281,40 @@ def test_a_new_length_and_frame_rate_compile_nothing_new():
     assert len(seen) == start, f"{len(seen) - start} new compilations"
     assert result.sampling.fps == 6000.0 and result.sampling.n_frames == 170
     assert np.isfinite(result.nmse)
+    for params, model in (
+        (("S", "K"), truth),
+        (("S", "K", "C_f", "t_c", "P_s"), truth.set(t_c=0.0)),
+        (("S", "P_s", "t_c"), truth),
+    ):
+        other = fit(model, second, params, swarm=swarm, polish=polish, progress=False)
+        assert set(other.params) == set(params) and other.nmse < other.nmse_of_mean
+    assert len(seen) == start, f"{len(seen) - start} new compilations"
     jax.jit(lambda x: x * 3.0 + 1.0)(np.arange(3.0))  # the counter sees a new program
     assert len(seen) == start + 1
+
+
+def test_first_fits_of_recordings_stating_their_pressure_or_not_share_a_batch():
+    """A recording that states its subglottal pressure and one that does not are first-fitted
+    in one batch: the first holds P_s at the stated value, the second searches it, and each
+    fit equals its fit alone."""
+    truth = vfjax.preset("N3")
+    low = truth.set(P_s=0.7 * float(truth.params()["P_s"]))
+    female = {"sex": "female"}
+    quiet = _recording(low, t_start=0.0291, noise_px=1.0)
+    quiet = Recording(area=quiet.area, fps=FPS, metadata=female, name="unstated")
+    stated = _recording(truth, t_start=0.0301, noise_px=1.0)
+    pressure = {**female, PRESSURE_KEY: float(truth.params()["P_s"])}
+    stated = Recording(area=stated.area, fps=FPS, metadata=pressure, name="stated")
+    options = dict(
+        restarts=1, swarm=Swarm(size=8, iterations=4, chunk=4), polish=Polish(max_steps=3)
+    )
+    both = vfjax.fit_recordings([quiet, stated], settle=False, progress=False, **options)
+    assert "P_s" in both[0].params and "P_s" not in both[1].params
+    assert float(both[1].model.params()["P_s"]) == float(truth.params()["P_s"])
+    for rec, batched in zip((quiet, stated), both):
+        alone = vfjax.fit_recording(rec, settle=False, progress=False, **options)
+        assert batched.nmse == pytest.approx(alone.nmse, rel=1e-9)
+        assert batched.params == pytest.approx(alone.params, rel=1e-9)
 
 
 def test_a_fit_in_a_batch_equals_the_fit_alone():

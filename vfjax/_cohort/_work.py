@@ -75,15 +75,10 @@ def read(task: Task, folder: CohortFolder) -> Task | dict:
 
 
 def batch_kind(recording: Recording) -> tuple:
-    """What recordings must share to be fitted in one batch: the length bucket, the unit,
-    and whether the subglottal pressure is stated (the free parameters)."""
-    from ..presets import PRESSURE_KEY
-
-    return (
-        length_bucket(recording.n_frames),
-        recording.unit,
-        PRESSURE_KEY in recording.metadata,
-    )
+    """What recordings must share to be fitted in one batch: the length bucket and the unit
+    (whether S is fitted). Recordings that state their subglottal pressure and recordings
+    that do not share a batch: the fits of the first hold P_s."""
+    return (length_bucket(recording.n_frames), recording.unit)
 
 
 def by_kind(tasks: list[Task]) -> list[list[Task]]:

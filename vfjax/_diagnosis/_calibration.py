@@ -506,12 +506,15 @@ def _coordinates(problem, values: dict, fill: float = math.nan) -> np.ndarray:
     """The search coordinates of parameter ``values`` in ``problem`` (``fill`` for those
     not given; 0 is the problem's reference point)."""
     z = np.full(len(problem.names), fill)
+    linear, reference, scale = (
+        np.asarray(a) for a in (problem.linear, problem.reference, problem.scale)
+    )
     for i, n in enumerate(problem.names):
         if n in values:
-            if problem.linear[i]:
-                z[i] = (values[n] - float(problem.reference[i])) / float(problem.scale[i])
+            if linear[i]:
+                z[i] = (values[n] - reference[i]) / scale[i]
             else:
-                z[i] = math.log(values[n] / float(problem.reference[i]))
+                z[i] = math.log(values[n] / reference[i])
     return z
 
 

@@ -8,12 +8,13 @@ program of `optimistix.least_squares` solves (`Polish`, by default Levenberg-Mar
 the best point kept) from each fit's swarm optimum, the fits one after the other, with no
 host round trip per step.
 
-What decides the compiled programs: the model's structure (its terms), the fitted names, the
-batch size rounded up to a power of two (`batch_bucket`; the padding fits are skipped), the
-length bucket (`vfjax.Sampling`, `length_bucket`), the swarm's size and chunk, the polish and
-the devices. Everything else (the recordings, frame rates, warm-ups, time-shift ranges,
-starting values, bounds, iteration counts) is data. A fit's result does not depend on the
-batch it ran in.
+What decides the compiled programs: the model's structure (its terms), the parameters it fits
+beyond `PROGRAM_PARAMETERS`, the batch size rounded up to a power of two (`batch_bucket`; the
+padding fits are skipped), the length bucket (`vfjax.Sampling`, `length_bucket`), the swarm's
+size and chunk, the polish and the devices. Everything else (the recordings, frame rates,
+warm-ups, time-shift ranges, starting values, bounds, iteration counts, which of the program's
+parameters are fitted, and in linear or log coordinates) is data. A fit's result does not
+depend on the batch it ran in.
 """
 
 import dataclasses
@@ -300,21 +301,6 @@ def _stages(recordings, samplings) -> list[list[int]]:
     return stages
 
 
-def _common_coordinates(problems) -> tuple[bool, ...]:
-    """The coordinate (linear or log) of each parameter, shared by a batch: a held
-    parameter takes the one its fitted counterparts use (either keeps it at its value)."""
-    common = []
-    for i, name in enumerate(problems[0].names):
-        kinds = {p.linear[i] for p in problems if p.free[i]} or {problems[0].linear[i]}
-        if len(kinds) > 1:
-            raise ValueError(
-                f"fit_many: {name} starts at 0 in some fits (linear search) and "
-                "away from 0 in others (log search); start them alike"
-            )
-        common.append(kinds.pop())
-    return tuple(common)
-
-
 def fit_many(
     model: VocalFoldModel | Sequence[VocalFoldModel],
     recordings: Sequence[Recording],
@@ -440,7 +426,6 @@ def fit_many(
     ]
     if len({p.fit_s for p, _, _ in prepared}) > 1:
         raise ValueError("fit_many: S is fitted for pixel recordings only; do not mix units")
-    linear = _common_coordinates([p for p, _, _ in prepared])
     # restarts: fit i's restarts follow each other in the batch (i * restarts + r)
     owner = np.repeat(np.arange(len(prepared)), restarts)
     boxes = [(prepared[i][1], prepared[i][2]) for i in owner]
@@ -450,7 +435,7 @@ def fit_many(
     pad = batch_bucket(max(n_fits, int(min_batch))) - n_fits
 
     def stacked(fits):
-        fits = [dataclasses.replace(fits[i], linear=linear) for i in owner]
+        fits = [fits[i] for i in owner]
         return fits, jax.tree.map(_stack_strong, *fits, *fits[:1] * pad)
 
     problems, batch = stacked([p for p, _, _ in prepared])

@@ -154,12 +154,13 @@ def fit_recordings(
     after `SETTLING_WARMUP`, as one batch of their own.
 
     Arguments:
-        recordings: the measured GAWs; they must leave the same parameters free (the same
-            unit, and each stating its subglottal pressure or none stating it), as
-            `first_fit_parameters` decides.
+        recordings: the measured GAWs, all in one unit. Each fit frees the parameters
+            `first_fit_parameters` gives for its recording (P_s where the recording does not
+            state it) and holds the rest at its model's values, all in one program.
         models: one starting model per recording, of one structure (default:
             `vfjax.initial_model` of each).
-        params: the parameters to fit (default: `first_fit_parameters`).
+        params: the parameters to fit, the same for every recording (default: each
+            recording's `first_fit_parameters`).
         restarts: independent searches per recording; the best is kept.
         bounds: ``{name: (low, high)}`` in the parameters' units, replacing
             `first_fit_bounds`' entries for every recording.
@@ -176,19 +177,21 @@ def fit_recordings(
     if len(models) != len(recordings):
         raise ValueError(f"got {len(models)} models for {len(recordings)} recordings")
     if params is None:
-        free = {first_fit_parameters(r, m) for r, m in zip(recordings, models)}
-        if len(free) > 1:
+        free = [first_fit_parameters(r, m) for r, m in zip(recordings, models)]
+        if len({"S" in f for f in free}) > 1:
             raise ValueError(
-                "fit_recordings: the recordings leave different parameters free "
-                f"({sorted(free)}); fit each kind in its own batch"
+                "fit_recordings: S is fitted for pixel recordings only; fit recordings in "
+                "pixels and in mm² or cm² in separate batches"
             )
-        (params,) = free
-    params = tuple(params)
+        params = tuple(dict.fromkeys(n for f in free for n in f))
+        hold = [tuple(n for n in params if n not in f) for f in free]
+    else:
+        params, hold = tuple(params), None
     boxes = [{**first_fit_bounds(m, params), **(bounds or {})} for m in models]
     key = jax.random.key(0) if key is None else key
     keys = jax.numpy.stack([jax.random.fold_in(key, 0)] * len(recordings))
     results = fit_many(
-        models, recordings, params, bounds=boxes, restarts=restarts, key=keys, **options
+        models, recordings, params, bounds=boxes, restarts=restarts, key=keys, hold=hold, **options
     )
     again = _to_settle(settle, options, results, recordings)
     if again:
@@ -197,6 +200,7 @@ def fit_recordings(
             [recordings[i] for i in again],
             params,
             bounds=[boxes[i] for i in again],
+            hold=None if hold is None else [hold[i] for i in again],
             restarts=restarts,
             key=keys[np.asarray(again)],
             **{**options, "warmup": SETTLING_WARMUP},

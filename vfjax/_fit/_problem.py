@@ -9,8 +9,10 @@ and the time shift, periodic and so highly multimodal, is chosen per particle on
 shifts half a frame apart, read from the same simulation's dense output.
 
 Everything that depends on the recording (its samples, frame rate, warm-up, shift range,
-starting values, bounds) is data: recordings of one length bucket and one model structure
-share one compiled program.
+starting values, bounds) is data, and so is which parameters are fitted: a problem carries
+every parameter of `PROGRAM_PARAMETERS` that its model has, those not fitted held at their
+values, so that fits of any of them (and S) share one compiled program per model structure
+and length bucket.
 """
 
 import math
@@ -62,6 +64,12 @@ LINEAR = {
     "C_min": (0.0, 500.0, 50.0),
 }
 
+#: The physical parameters whose fit never changes the compiled program: every problem
+#: carries those of them that its model has, the ones not fitted held at their values (their
+#: search interval [0, 0]), so that fits of any subset of them share one program. A fitted
+#: parameter outside them (an effect's) joins them, in the model's order of parameters.
+PROGRAM_PARAMETERS = ("K", "C_f", "t_c", "P_s")
+
 #: Simulated time before the first frame (s) of a fit whose terms need no more.
 WARMUP = 0.02
 #: The largest time shift of a fit: this many cycles of the recording's f0, rounded up to a
@@ -108,12 +116,12 @@ class Problem(eqx.Module):
     floor: jax.Array  # (n_params,) physical lower limit (-inf: none)
     ceiling: jax.Array  # (n_params,) physical upper limit (inf: none)
     free: jax.Array  # (n_params,) 1 for a fitted parameter, 0 for a held one
+    linear: jax.Array  # (n_params,) True: linear coordinate, False: log(p / p_ref)
     s_reference: jax.Array  # () starting (or fixed) S
     period: jax.Array  # () T0 estimate (s)
     s_bounds: jax.Array  # (2,) search bounds of S (px/mm²)
     difference: jax.Array  # (frames bucket,) left minus right fold's area (per-fold fits)
-    names: tuple = eqx.field(static=True)  # fitted physical parameters, S excluded
-    linear: tuple = eqx.field(static=True)  # per name: linear (True) or log coordinate
+    names: tuple = eqx.field(static=True)  # `program_names`: S excluded, held ones included
     fit_s: bool = eqx.field(static=True)
     n_out: int = eqx.field(static=True)  # frames bucket
     n_rows: int = eqx.field(static=True)  # dense-output rows
@@ -132,16 +140,12 @@ class Problem(eqx.Module):
         # P_s stays within `PLAUSIBLE`), so that an unconstrained polish step stays physical;
         # a held parameter's coordinate is multiplied by 0: it stays at its reference value
         z = z[: len(self.names)] * self.free
-        values = {
-            n: jnp.clip(
-                self.reference[i] + self.scale[i] * z[i]
-                if lin
-                else self.reference[i] * jnp.exp(z[i]),
-                self.floor[i],
-                self.ceiling[i],
-            )
-            for i, (n, lin) in enumerate(zip(self.names, self.linear))
-        }
+        # both coordinates computed, one kept (the exponent of a linear one set to 0, so that
+        # neither it nor its derivative overflows)
+        on_scale = self.reference + self.scale * z
+        in_log = self.reference * jnp.exp(jnp.where(self.linear, 0.0, z))
+        values = jnp.clip(jnp.where(self.linear, on_scale, in_log), self.floor, self.ceiling)
+        values = {n: values[i] for i, n in enumerate(self.names)}
         s = self.s_reference if log_s is None else self.s_reference * jnp.exp(log_s)
         return self.model.set(**values, S=s)
 
@@ -265,6 +269,16 @@ class Problem(eqx.Module):
         return self.model_at(z, y[-1] if self.fit_s else None), float(self.shift(z))
 
 
+def program_names(model: VocalFoldModel, params) -> tuple[str, ...]:
+    """The physical parameters of a problem fitting ``params`` of ``model`` (S excluded):
+    those of `PROGRAM_PARAMETERS` the model has, in that order, then the other fitted ones
+    in the model's order of parameters. Fits of one model structure whose fitted parameters
+    lie among the same names share one compiled program."""
+    units = model.parameter_units()
+    core = tuple(n for n in PROGRAM_PARAMETERS if n in units)
+    return core + tuple(n for n in units if n in params and n not in core and n != "S")
+
+
 def program_size(sampling: Sampling) -> tuple[int, int, int]:
     """The static sizes of a fit's program for ``sampling``: (frames, dense rows, shifts)."""
     n_out, n_rows = window_size(sampling)
@@ -339,9 +353,10 @@ def bounds_in_units(problem: Problem, lower, upper) -> dict:
     of one unbatched problem: the coordinates' box within the parameters' physical limits."""
     out = {}
     rows = zip(problem.names, np.asarray(lower), np.asarray(upper))
+    linear = np.asarray(problem.linear)
     for i, (n, a, b) in enumerate(rows):
         ref, scale = float(problem.reference[i]), float(problem.scale[i])
-        if problem.linear[i]:
+        if linear[i]:
             low, high = ref + scale * float(a), ref + scale * float(b)
         else:
             low, high = ref * math.exp(float(a)), ref * math.exp(float(b))
@@ -397,12 +412,16 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
                 f"{recording.unit}, so S is fixed and cannot be fitted"
             )
         model = model.set(S=_AREA_TO_PX_SCALE[recording.unit])
-    names = tuple(n for n in params if n != "S")
     held = tuple(held)
-    if any(n not in names for n in held):
+    if any(n not in params or n == "S" for n in held):
         raise ValueError(
             f"only fitted parameters other than S can be held, got {held} for params {params}"
         )
+    names = program_names(model, params)
+    # the program's parameters that are not fitted are held at the model's values; bounds
+    # apply to the fitted ones
+    held += tuple(n for n in names if n not in params)
+    bounds = {n: b for n, b in (bounds or {}).items() if n in params and n not in held}
     lo, hi = _bounds(names, model, bounds)
     floor, ceiling = _limits(names, model, bounds)
     free = np.array([n not in held for n in names], dtype=float)
@@ -431,12 +450,12 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
         floor=jnp.asarray(floor),
         ceiling=jnp.asarray(ceiling),
         free=jnp.asarray(free),
+        linear=jnp.asarray([_is_linear(model, n, float(model.params()[n]), bounds) for n in names]),
         s_reference=jnp.asarray(s_ref),
         period=jnp.asarray(period),
         s_bounds=jnp.asarray(s_bounds),
         difference=jnp.asarray(difference),
         names=names,
-        linear=tuple(_is_linear(model, n, float(model.params()[n]), bounds) for n in names),
         fit_s=fit_s,
         n_out=n_out,
         n_rows=n_rows,
