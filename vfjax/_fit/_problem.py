@@ -352,16 +352,15 @@ def bounds_in_units(problem: Problem, lower, upper) -> dict:
     """The search box {name: [low, high]} in the parameters' units (S included if fitted),
     of one unbatched problem: the coordinates' box within the parameters' physical limits."""
     out = {}
-    rows = zip(problem.names, np.asarray(lower), np.asarray(upper))
-    linear = np.asarray(problem.linear)
-    for i, (n, a, b) in enumerate(rows):
-        ref, scale = float(problem.reference[i]), float(problem.scale[i])
-        if linear[i]:
+    # host copies: indexing the problem's device arrays would run an operation per entry
+    columns = (problem.linear, problem.reference, problem.scale, problem.floor, problem.ceiling)
+    rows = zip(problem.names, np.asarray(lower), np.asarray(upper), *map(np.asarray, columns))
+    for n, a, b, linear, ref, scale, floor, ceiling in rows:
+        if linear:
             low, high = ref + scale * float(a), ref + scale * float(b)
         else:
             low, high = ref * math.exp(float(a)), ref * math.exp(float(b))
-        floor, ceiling = float(problem.floor[i]), float(problem.ceiling[i])
-        out[n] = [min(max(low, floor), ceiling), max(min(high, ceiling), floor)]
+        out[n] = [float(min(max(low, floor), ceiling)), float(max(min(high, ceiling), floor))]
     if problem.fit_s:
         out["S"] = [float(v) for v in np.asarray(problem.s_bounds)]
     return out
@@ -426,7 +425,8 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
     floor, ceiling = _limits(names, model, bounds)
     free = np.array([n not in held for n in names], dtype=float)
     lo, hi = lo * free, hi * free  # a held parameter's search interval is [0, 0]
-    s_ref = float(model.params()["S"])
+    values = {n: float(v) for n, v in model.params().items() if np.ndim(v) == 0}
+    s_ref = values["S"]
     if fit_s:
         s_lo, s_hi = _bounds(("S",), model, bounds)
         s_bounds = np.exp(np.r_[s_lo, s_hi]) * s_ref
@@ -445,12 +445,12 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
         grid=sampled_grid(sampling),
         measured=jnp.asarray(measured),
         counted=jnp.asarray(np.arange(n_out) < recording.n_frames, dtype=float),
-        reference=jnp.asarray([float(model.params()[n]) for n in names]),
+        reference=jnp.asarray([values[n] for n in names]),
         scale=jnp.asarray([(search_range(model, n) or (0.0, 1.0, 0.1))[2] for n in names]),
         floor=jnp.asarray(floor),
         ceiling=jnp.asarray(ceiling),
         free=jnp.asarray(free),
-        linear=jnp.asarray([_is_linear(model, n, float(model.params()[n]), bounds) for n in names]),
+        linear=jnp.asarray([_is_linear(model, n, values[n], bounds) for n in names]),
         s_reference=jnp.asarray(s_ref),
         period=jnp.asarray(period),
         s_bounds=jnp.asarray(s_bounds),
