@@ -416,6 +416,41 @@ def test_each_fit_of_a_continued_batch_equals_its_fit_alone(continued):
         assert fitted.params == pytest.approx(alone.params, rel=rel)
 
 
+def test_a_long_fit_beside_one_of_more_stages_is_its_fit_alone(continued):
+    """Beside a recording of about 75 cycles (three stages: 16, 64, all), the 31-cycle
+    recording's fit (two stages) is its fit beside the short one: once its own windows have
+    ended it is not polished again."""
+    long, _, both, swarm, key = continued
+    n3 = vfjax.preset("N3")
+    faster = n3.set(K=2.0 * float(n3.params()["K"]))  # f0 about 290 Hz
+    mate = vfjax.datasets.demo_recording("N3", 1.5, 5, 2000.0, 510, jitter=0.003, model=faster)
+    f0 = vfjax.descriptors.fundamental_frequency(mate.area, mate.fps)
+    assert mate.n_frames / mate.fps * f0 > 64
+    batch = vfjax.fit_recordings([long, mate], restarts=1, swarm=swarm, key=key)
+    assert batch[0].nmse == pytest.approx(both[0].nmse, rel=1e-9)
+    assert batch[0].params == pytest.approx(both[0].params, rel=1e-9)
+
+
+def test_a_recording_is_fitted_on_its_own_windows_in_any_batch():
+    """Each recording's stages are its own: beside a recording of more cycles (more
+    stages), a long recording's windows end where they end alone (it is whole, and not
+    polished again, at the later stages), and a short one is whole at every stage."""
+    from vfjax._fit._engine import _stages
+
+    def rec(n):
+        return Recording(area=1.0 + np.sin(np.arange(n) * 2.0), fps=2000.0)
+
+    period = 1.0 / 207.0  # s: 9.66 frames a cycle at 2 kHz
+    long, longer, short = rec(301), rec(1001), rec(101)  # 31.2, 103.6 and 10.5 cycles
+    sixteen, sixty_four = 155, 619  # frames of 16 and 64 cycles, rounded up
+    assert _stages([long], [(None, period)]) == [[sixteen], [301]]
+    assert _stages([short], [(None, period)]) == [[101]]
+    both = _stages([long, longer, short], [(None, period)] * 3)
+    assert [s[1] for s in both] == [sixteen, sixty_four, 1001]
+    assert [s[0] for s in both] == [sixteen, 301, 301]
+    assert [s[2] for s in both] == [101, 101, 101]
+
+
 def test_bad_input_is_refused():
     truth = vfjax.preset("N1")
     rec = _recording(truth, t_start=0.03)

@@ -278,27 +278,30 @@ def _result_name(result, index) -> str:
     return "unknown"
 
 
-def _stages(recordings, samplings) -> list[list[int]]:
-    """The frames each recording is fitted on, stage by stage (see `LONG_CYCLES`): one stage
-    of the whole recordings where none has more than `LONG_CYCLES` cycles; else windows
-    from the first frame of `FIRST_WINDOW_CYCLES` cycles (at least `MIN_WINDOW_FRAMES`
-    frames), growing `WINDOW_GROWTH`-fold, the last stage the whole recordings (a short
-    recording of the batch is whole at every stage)."""
-    cycles = [r.n_frames / r.fps / period for r, (_, period) in zip(recordings, samplings)]
-    whole = [r.n_frames for r in recordings]
-    if max(cycles) <= LONG_CYCLES:
-        return [whole]
-    stages, k = [], 0
-    while not stages or stages[-1] != whole:
+def _windows(recording: Recording, period: float) -> list[int]:
+    """The frames one recording is fitted on, stage by stage (see `LONG_CYCLES`): the whole
+    recording where it has at most `LONG_CYCLES` cycles of ``period`` (s); else windows from
+    the first frame of `FIRST_WINDOW_CYCLES` cycles (at least `MIN_WINDOW_FRAMES` frames),
+    growing `WINDOW_GROWTH`-fold, the last one the whole recording."""
+    n = recording.n_frames
+    cycles = n / recording.fps / period
+    if cycles <= LONG_CYCLES:
+        return [n]
+    frames, k = [], 0
+    while not frames or frames[-1] != n:
         span = FIRST_WINDOW_CYCLES * WINDOW_GROWTH**k
-        stages.append(
-            [
-                n if c <= LONG_CYCLES else min(n, max(MIN_WINDOW_FRAMES, math.ceil(span * n / c)))
-                for n, c in zip(whole, cycles)
-            ]
-        )
+        frames.append(min(n, max(MIN_WINDOW_FRAMES, math.ceil(span * n / cycles))))
         k += 1
-    return stages
+    return frames
+
+
+def _stages(recordings, samplings) -> list[list[int]]:
+    """The frames each recording is fitted on, stage by stage: each recording's own windows
+    (`_windows`), as many stages as the recording with the most; a recording whose own
+    windows have ended is whole at the later stages, where its fit is not polished again (so
+    that it does not depend on the batch)."""
+    own = [_windows(r, period) for r, (_, period) in zip(recordings, samplings)]
+    return [[w[min(k, len(w) - 1)] for w in own] for k in range(max(map(len, own)))]
 
 
 def fit_many(
@@ -442,7 +445,14 @@ def fit_many(
     # the earlier stages of a long recording's fit: its first cycles (see `LONG_CYCLES`)
     windows = []
     stages = _stages(recordings, samplings)
-    long_fits = np.array([n != r.n_frames for n, r in zip(stages[0], recordings)])
+    # which fits each earlier stage polishes: those whose own windows have not ended there
+    polished_at = [
+        np.r_[
+            np.array([n != r.n_frames for n, r in zip(frames, recordings)])[owner],
+            np.zeros(pad, bool),
+        ]
+        for frames in stages[:-1]
+    ]
     for frames in stages[:-1]:
         cut = [(dataclasses.replace(s, n_frames=n), t) for (s, t), n in zip(samplings, frames)]
         small = tuple(max(x) for x in zip(*(program_size(s) for s, _ in cut)))
@@ -514,13 +524,14 @@ def fit_many(
     if not windows:
         polished = _polish_slices(batch, active, found, no_points, from_swarm, polish)
     else:
-        # a long recording's windows, each polish from the last one's point; the other
+        # a long recording's own windows, each polish from the last one's point; the other
         # recordings of the batch are polished once, from the swarm's best, as alone
-        long = jnp.asarray(np.r_[long_fits[owner], np.zeros(pad, bool)])
         points, given = no_points, from_swarm
-        for stage in windows:
-            start = _polish_slices(stage, active & long, found, points, given, polish)
-            points, given = start[2 if polish else 0], long
+        for stage, on in zip(windows, polished_at):
+            on = jnp.asarray(on)
+            start = _polish_slices(stage, active & on, found, points, given, polish)
+            points = jnp.where(on[:, None], start[2 if polish else 0], points)
+            given = jnp.asarray(polished_at[0])  # the long fits: from their last window's point
         polished = _polish_slices(batch, active, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
