@@ -336,7 +336,8 @@ def fit_many(
     whole recording. ``model`` is one model for all, or one model per recording (of one
     structure: the same terms; e.g. several starting points for one recording). Fit i's
     result depends only on its model, recording, hold, restarts and key
-    ``jax.random.fold_in(key, i)``, not on the rest of the batch.
+    ``jax.random.fold_in(key, i)``, not on the rest of the batch (on a given number of
+    devices: split over another number, the swarm's costs can round otherwise).
 
     Arguments:
         model: the starting model(s), with every non-fitted parameter set (e.g.
