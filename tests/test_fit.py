@@ -432,9 +432,10 @@ def test_a_long_fit_beside_one_of_more_stages_is_its_fit_alone(continued):
 
 
 def test_a_recording_is_fitted_on_its_own_windows_in_any_batch():
-    """Each recording's stages are its own: beside a recording of more cycles (more
-    stages), a long recording's windows end where they end alone (it is whole, and not
-    polished again, at the later stages), and a short one is whole at every stage."""
+    """The frames of each stage: a recording's windows (16, then 64 cycles, rounded up to
+    whole frames) are the same beside a recording of more stages as alone, whole once they
+    have ended, and a short recording is whole at every stage. (That a recording is not
+    polished at the stages after its own is the test above.)"""
     from vfjax._fit._engine import _stages
 
     def rec(n):

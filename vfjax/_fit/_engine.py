@@ -444,17 +444,12 @@ def fit_many(
 
     problems, batch = stacked([p for p, _, _ in prepared])
     # the earlier stages of a long recording's fit: its first cycles (see `LONG_CYCLES`)
-    windows = []
+    # and, per stage, which fits it polishes: those whose own windows have not ended there
+    windows, polished_at = [], []
     stages = _stages(recordings, samplings)
-    # which fits each earlier stage polishes: those whose own windows have not ended there
-    polished_at = [
-        np.r_[
-            np.array([n != r.n_frames for n, r in zip(frames, recordings)])[owner],
-            np.zeros(pad, bool),
-        ]
-        for frames in stages[:-1]
-    ]
     for frames in stages[:-1]:
+        unended = np.array([n != r.n_frames for n, r in zip(frames, recordings)])
+        polished_at.append(jnp.asarray(np.r_[unended[owner], np.zeros(pad, bool)]))
         cut = [(dataclasses.replace(s, n_frames=n), t) for (s, t), n in zip(samplings, frames)]
         small = tuple(max(x) for x in zip(*(program_size(s) for s, _ in cut)))
         parts = zip(models, recordings, cut, hold, bounds, frames)
@@ -527,12 +522,12 @@ def fit_many(
     else:
         # a long recording's own windows, each polish from the last one's point; the other
         # recordings of the batch are polished once, from the swarm's best, as alone
+        long = polished_at[0]  # after the first window, from their last window's point
         points, given = no_points, from_swarm
         for stage, on in zip(windows, polished_at):
-            on = jnp.asarray(on)
             start = _polish_slices(stage, active & on, found, points, given, polish)
             points = jnp.where(on[:, None], start[2 if polish else 0], points)
-            given = jnp.asarray(polished_at[0])  # the long fits: from their last window's point
+            given = long
         polished = _polish_slices(batch, active, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
