@@ -317,17 +317,35 @@ def test_first_fits_of_recordings_stating_their_pressure_or_not_share_a_batch():
         assert batched.params == pytest.approx(alone.params, rel=1e-9)
 
 
-def test_a_fit_in_a_batch_equals_the_fit_alone():
-    """Fit 0 of a batch of three recordings (other lengths, frame rates) equals the same fit
-    run alone: the same key gives the same numbers, whatever the rest of the batch."""
+def _three_in_a_batch():
+    """One batch of three recordings of N1 (other lengths and frame rates, K 0.9 and 1.1 of
+    the truth for the second and third) fitted from `_start`, key 3, a small swarm."""
     truth = vfjax.preset("N1")
-    swarm = Swarm(size=12, iterations=10)
     recs = [_recording(truth, t_start=0.0301, noise_px=1.0, name="a")]
     for fps, n, f in ((3000.0, 150, 0.9), (5000.0, 240, 1.1)):
         sim = vfjax.simulate(truth.set(K=f * float(truth.params()["K"])), fps, n, t_start=0.03)
         recs.append(Recording(area=np.clip(np.asarray(sim.area), 0, None), fps=fps, name=str(n)))
+    swarm, key = Swarm(size=12, iterations=10), jax.random.key(3)
+    return recs, fit_many(_start(truth), recs, swarm=swarm, key=key, progress=False)
+
+
+def _numbers(results) -> list:
+    """Each fit's NMSE, time shift, parameters and swarm trace, as plain floats."""
+    return [[r.nmse, r.time_shift, *r.params.values(), *r.pso_trace] for r in results]
+
+
+@pytest.fixture(scope="module")
+def three_in_a_batch():
+    return _three_in_a_batch()
+
+
+def test_a_fit_in_a_batch_equals_the_fit_alone(three_in_a_batch):
+    """Fit 0 of a batch of three recordings (other lengths, frame rates) equals the same fit
+    run alone: the same key gives the same numbers, whatever the rest of the batch."""
+    truth = vfjax.preset("N1")
+    swarm = Swarm(size=12, iterations=10)
+    recs, batch = three_in_a_batch
     key = jax.random.key(3)
-    batch = fit_many(_start(truth), recs, swarm=swarm, key=key, progress=False)
     alone = fit_many(_start(truth), recs[:1], swarm=swarm, key=key, progress=False)[0]
     # alone, padded with skipped fits to the batch's size (its programs)
     (padded,) = fit_many(_start(truth), recs[:1], swarm=swarm, key=key, min_batch=3)
@@ -340,6 +358,37 @@ def test_a_fit_in_a_batch_equals_the_fit_alone():
     assert batch[0].time_shift == pytest.approx(alone.time_shift, rel=1e-9)
     for rec, r in zip(recs, batch):  # each reported NMSE is that of its fitted GAW
         assert r.nmse == pytest.approx(float(vfjax.nmse(rec.area, r.fitted_gaw())), rel=1e-9)
+
+
+_ON_TWO_DEVICES = """
+import json, sys
+import jax
+jax.config.update("jax_num_cpu_devices", 2)
+sys.path.insert(0, {tests!r})
+import test_fit
+assert len(jax.devices()) == 2
+print(json.dumps(test_fit._numbers(test_fit._three_in_a_batch()[1])))
+"""
+
+
+def test_a_batch_split_over_two_devices_equals_it_on_one(three_in_a_batch):
+    """The batch of three (four fits with its padding) in a process of two CPU devices, as
+    the command line runs: each device fits its two, and every number equals the batch's on
+    one device to the last bit (the same one-device programs on either device; a program
+    split over the devices by XLA, `jax.shard_map`, rounds otherwise)."""
+    import subprocess
+    import sys
+
+    here = str(pathlib.Path(__file__).parent)
+    run = subprocess.run(
+        [sys.executable, "-c", _ON_TWO_DEVICES.format(tests=here)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    on_two = json.loads(run.stdout.strip().splitlines()[-1])
+    assert on_two == _numbers(three_in_a_batch[1])
 
 
 def test_a_first_fit_that_matches_the_start_up_is_made_again_after_a_longer_warm_up(

@@ -2,19 +2,26 @@
 
 Stage 1, global: a particle swarm (`Swarm`), every particle of every fit simulated in one
 call per iteration (the particles of all fits side by side, `MAX_LANES` to a vmapped
-simulation; on several devices each device simulates its share of every swarm), in compiled
-chunks of iterations (progress is reported between chunks). Stage 2, local: one compiled
-program of `optimistix.least_squares` solves (`Polish`, by default Levenberg-Marquardt with
-the best point kept) from each fit's swarm optimum, the fits one after the other, with no
-host round trip per step.
+simulation), in compiled chunks of iterations (progress is reported between chunks). Stage
+2, local: one compiled program of `optimistix.least_squares` solves (`Polish`, by default
+Levenberg-Marquardt with the best point kept) from each fit's swarm optimum, the fits one
+after the other, with no host round trip per step.
+
+On several devices (CPU devices: `jax_num_cpu_devices`) a batch's fits are split among them
+in equal groups (`_device_groups`), each device running the one-device programs on its group,
+and the polish's slices are dealt to the devices in turn; the devices run side by side, and a
+fit computes the same bits on any number of them. (A program split over devices by XLA's SPMD
+partitioner, as with `jax.shard_map`, rounds otherwise than the same program on one device,
+and a swarm is chaotic: such a split can end a fit in another basin.)
 
 What decides the compiled programs: the model's structure (its terms), the parameters it fits
-beyond `PROGRAM_PARAMETERS`, the batch size rounded up to a power of two (`batch_bucket`; the
-padding fits are skipped), the length bucket (`vfjax.Sampling`, `length_bucket`), the swarm's
-size and chunk, the polish and the devices. Everything else (the recordings, frame rates,
-warm-ups, time-shift ranges, starting values, bounds, iteration counts, which of the program's
-parameters are fitted, and in linear or log coordinates) is data. A fit's result does not
-depend on the batch it ran in.
+beyond `PROGRAM_PARAMETERS`, the batch size over the devices, rounded up to a power of two
+(`batch_bucket`; the padding fits are skipped), the length bucket (`vfjax.Sampling`,
+`length_bucket`), the swarm's size and chunk and the polish; each device compiles its own
+copy. Everything else (the recordings, frame rates, warm-ups, time-shift ranges, starting
+values, bounds, iteration counts, which of the program's parameters are fitted, and in linear
+or log coordinates) is data. A fit's result does not depend on the batch it ran in, nor on the
+number of devices.
 """
 
 import dataclasses
@@ -22,6 +29,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
 import jax
@@ -72,65 +80,48 @@ MAX_LANES = 96
 _LANE_ALIGN = 8
 
 
-def lanes(n_fits: int, n_particles: int, n_devices: int) -> int:
-    """Particles one device simulates side by side for a batch of ``n_fits`` fits (padded)
-    of ``n_particles`` each: half of its share (so a lone fit's padding partner is
-    skipped), aligned to `_LANE_ALIGN`, at most `MAX_LANES`."""
-    share = n_fits * n_particles // n_devices
-    half = -(-share // 2)
+def lanes(n_fits: int, n_particles: int) -> int:
+    """Particles a device simulates side by side for a group of ``n_fits`` fits (padded) of
+    ``n_particles`` each: half of them (so a lone fit's padding partner is skipped), aligned
+    to `_LANE_ALIGN`, at most `MAX_LANES`."""
+    half = -(-n_fits * n_particles // 2)
     return min(MAX_LANES, _LANE_ALIGN * -(-half // _LANE_ALIGN))
 
 
-def _swarm_costs(batch, active, positions, mesh, width: int):
+def _swarm_costs(batch, active, positions, width: int):
     """The swarm cost of every particle of every fit, (fits, n, d) -> (fits, n), and the
     rest of each particle's polish point (its profiled time shift and S), (fits, n, a).
 
-    Each device takes an equal share of every fit's particles (all of them without a
-    ``mesh``) and lays them out fit after fit; it simulates them ``width`` at a time
-    (`lanes`; one vmapped simulation, each particle with its own fit's problem) in a
-    `lax.map` of at least two chunks. A chunk of padding fits only (``active`` False) is
-    skipped; a padding particle's cost is inf. A particle's cost does not depend on the
-    batch: its lane is in a full SIMD vector of a vmap of the same code whatever the batch."""
+    The particles are laid out fit after fit and simulated ``width`` at a time (`lanes`;
+    one vmapped simulation, each particle with its own fit's problem) in a `lax.map` of at
+    least two chunks. A chunk of padding fits only (``active`` False) is skipped; a padding
+    particle's cost is inf. A particle's cost does not depend on the batch: its lane is in a
+    full SIMD vector of a vmap of the same code whatever the batch."""
     n_fits, n, d = positions.shape
     n_aux = batch.n_profiled
-    n_dev = 1 if mesh is None else mesh.devices.size
-    per = n // n_dev
-    share = n_fits * per
+    share = n_fits * n
     chunks = max(2, -(-share // width))
     pad = chunks * width - share
-    x = positions.reshape(n_fits, n_dev, per, d).transpose(1, 0, 2, 3).reshape(n_dev, share, d)
-    x = jnp.pad(x, ((0, 0), (0, pad), (0, 0))).reshape(n_dev, chunks, width, d)
-    owner = jnp.pad(jnp.repeat(jnp.arange(n_fits), per), (0, pad)).reshape(chunks, width)
-    live = jnp.pad(jnp.repeat(active, per), (0, pad)).reshape(chunks, width)
+    x = jnp.pad(positions.reshape(share, d), ((0, pad), (0, 0))).reshape(chunks, width, d)
+    owner = jnp.pad(jnp.repeat(jnp.arange(n_fits), n), (0, pad)).reshape(chunks, width)
+    live = jnp.pad(jnp.repeat(active, n), (0, pad)).reshape(chunks, width)
 
-    def costs(x, owner, live):
-        def chunk(args):
-            z, fit, on = args
+    def chunk(args):
+        z, fit, on = args
 
-            def run():
-                problems = jax.tree.map(lambda a: a[fit], batch)
-                cost, rest = jax.vmap(lambda p, zi: p.swarm_cost(zi))(problems, z)
-                return jnp.where(on, cost, jnp.inf), rest
+        def run():
+            problems = jax.tree.map(lambda a: a[fit], batch)
+            cost, rest = jax.vmap(lambda p, zi: p.swarm_cost(zi))(problems, z)
+            return jnp.where(on, cost, jnp.inf), rest
 
-            skip = jnp.full(on.shape, jnp.inf, z.dtype), jnp.zeros(on.shape + (n_aux,), z.dtype)
-            return jax.lax.cond(jnp.any(on), run, lambda: skip)
+        skip = jnp.full(on.shape, jnp.inf, z.dtype), jnp.zeros(on.shape + (n_aux,), z.dtype)
+        return jax.lax.cond(jnp.any(on), run, lambda: skip)
 
-        return jax.tree.map(lambda a: a[None], jax.lax.map(chunk, (x[0], owner, live)))
-
-    if mesh is None:
-        out = costs(x, owner, live)
-    else:
-        part, whole = jax.sharding.PartitionSpec("particles"), jax.sharding.PartitionSpec()
-        out = jax.shard_map(
-            costs, mesh=mesh, in_specs=(part, whole, whole), out_specs=part, check_vma=False
-        )(x, owner, live)
-
-    def per_fit(a):  # (devices, chunks, width, ...) -> (fits, n, ...)
-        tail = a.shape[3:]
-        a = a.reshape(n_dev, chunks * width, *tail)[:, :share].reshape(n_dev, n_fits, per, *tail)
-        return jnp.swapaxes(a, 0, 1).reshape(n_fits, n, *tail)
-
-    return jax.tree.map(per_fit, out)
+    out = jax.lax.map(chunk, (x, owner, live))
+    return jax.tree.map(
+        lambda a: a.reshape(chunks * width, *a.shape[2:])[:share].reshape(n_fits, n, *a.shape[2:]),
+        out,
+    )
 
 
 @eqx.filter_jit
@@ -144,23 +135,58 @@ def _swarm_start(lowers, uppers, keys, swarm: Swarm, n_aux: int):
 
 
 @eqx.filter_jit
-def _swarm_chunk(batch, active, lowers, uppers, states, live, swarm: Swarm, mesh, width: int):
+def _swarm_chunk(batch, active, lowers, uppers, states, live, swarm: Swarm, width: int):
     def costs(x):
-        return _swarm_costs(batch, active, x, mesh, width)
+        return _swarm_costs(batch, active, x, width)
 
-    states, costs = run_chunk(costs, lowers, uppers, swarm, states, live)
-    return _replicated(states, mesh), costs
+    return run_chunk(costs, lowers, uppers, swarm, states, live)
 
 
-def _replicated(tree, mesh):
-    """``tree`` held whole by every device of ``mesh`` (unchanged without a mesh): the swarm
-    states enter and leave every chunk alike, so that one program serves every chunk."""
-    if mesh is None:
-        return tree
-    whole = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
-    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree)):
-        return jax.lax.with_sharding_constraint(tree, whole)
-    return jax.device_put(tree, whole)
+def _device_groups(n_batch: int) -> list:
+    """The devices among which a batch of ``n_batch`` fits (a power of two, `batch_bucket`)
+    is split, an equal group of consecutive fits to each: as many of the default backend's
+    devices (a power of two of them) as leave every group at least two fits (see
+    `batch_bucket`). Each device runs the one-device programs on its group, so a fit
+    computes the same bits on any number of devices."""
+    devices = jax.devices()
+    n = 1
+    while 2 * n <= len(devices) and n_batch // (2 * n) >= 2:
+        n *= 2
+    return devices[:n]
+
+
+def _split(tree, devices):
+    """``tree``'s array leaves cut along their leading axis into ``len(devices)`` equal
+    consecutive parts, the k-th placed on ``devices[k]`` (its other leaves as they are)."""
+    arrays, rest = eqx.partition(tree, eqx.is_array)
+    n = len(devices)
+
+    def part(k):
+        cut = jax.tree.map(lambda x: x[k * (x.shape[0] // n) : (k + 1) * (x.shape[0] // n)], arrays)
+        return eqx.combine(jax.device_put(cut, devices[k]), rest)
+
+    return [part(k) for k in range(n)]
+
+
+def _joined(parts):
+    """The inverse of `_split`: the parts' array leaves joined along their leading axis, on
+    the default device."""
+    home = jax.devices()[0]
+    return jax.tree.map(lambda *xs: jnp.concatenate([jax.device_put(x, home) for x in xs]), *parts)
+
+
+def _side_by_side(calls: Sequence[Callable]) -> list:
+    """Each of ``calls`` (no arguments; each computes on its own device) run to its end,
+    in one thread each where there are several (a CPU device computes in the thread that
+    calls it; XLA releases the GIL), and their outputs in order."""
+
+    def finished(call):
+        return jax.block_until_ready(call())
+
+    if len(calls) == 1:
+        return [finished(calls[0])]
+    with ThreadPoolExecutor(len(calls)) as pool:
+        return list(pool.map(finished, calls))
 
 
 def _stack_strong(*xs):
@@ -177,15 +203,6 @@ def batch_bucket(n_fits: int) -> int:
     `lax.map`, into other code, which rounds differently). The padding fits are skipped
     (they cost no simulation)."""
     return 1 << max(int(n_fits) - 1, 1).bit_length()
-
-
-def _particle_mesh(swarm: Swarm):
-    """A mesh of the default backend's devices over which to split each swarm's particles,
-    or None (one device, or particles that do not divide among them)."""
-    devices = jax.devices()
-    if len(devices) < 2 or swarm.size % len(devices):
-        return None
-    return jax.sharding.Mesh(np.array(devices), ("particles",))
 
 
 #: Fits per call of the compiled polish: a batch of any size is polished
@@ -207,14 +224,23 @@ def _polish_slices(batch, active, found, points, from_point, polish: Polish | No
         lambda x: np.asarray(x) if eqx.is_array(x) else x,
         (batch, active, found, points, from_point),
     )
-    parts = []
+    slices = []
     for start in range(0, n, POLISH_SLICE):
 
         def cut(x, start=start):
             return x[start : start + POLISH_SLICE] if isinstance(x, np.ndarray) else x
 
-        parts.append(_polish_batch(*jax.tree.map(cut, host), polish))
-    return jax.tree.map(lambda *xs: jnp.concatenate(xs), *parts)
+        slices.append(jax.tree.map(cut, host))
+    # the slices dealt to the devices in turn, each device polishing its own in order
+    devices = jax.devices()[: len(slices)]
+    n_dev = len(devices)
+
+    def polish_on(k):
+        mine = slices[k::n_dev]
+        return [_polish_batch(*_split(part, devices[k : k + 1])[0], polish) for part in mine]
+
+    done = _side_by_side([lambda k=k: polish_on(k) for k in range(n_dev)])
+    return _joined([done[i % n_dev][i // n_dev] for i in range(len(slices))])
 
 
 # The polish runs the fits of a slice one after the other (`lax.map`), not side by side:
@@ -336,8 +362,8 @@ def fit_many(
     whole recording. ``model`` is one model for all, or one model per recording (of one
     structure: the same terms; e.g. several starting points for one recording). Fit i's
     result depends only on its model, recording, hold, restarts and key
-    ``jax.random.fold_in(key, i)``, not on the rest of the batch (on a given number of
-    devices: split over another number, the swarm's costs can round otherwise).
+    ``jax.random.fold_in(key, i)``, not on the rest of the batch nor on the number of
+    devices (a batch of at least four fits is split among the devices, see the module).
 
     Arguments:
         model: the starting model(s), with every non-fitted parameter set (e.g.
@@ -481,23 +507,28 @@ def fit_many(
             total=swarm.iterations + 1 + (1 if polish else 0), desc=f"fit {name}", leave=False
         )
 
-    # Stage 1: the swarm, in chunks.
+    # Stage 1: the swarm, in chunks, each device's group of fits in a thread of its own
     t0 = time.perf_counter()
-    mesh = _particle_mesh(swarm)
-    width = lanes(n_fits + pad, swarm.size, 1 if mesh is None else mesh.devices.size)
+    devices = _device_groups(n_fits + pad)
+    width = lanes((n_fits + pad) // len(devices), swarm.size)
     n_aux = problems[0].n_profiled
-    states = _replicated(_swarm_start(lowers, uppers, keys, program, n_aux), mesh)
+    states = _split(_swarm_start(lowers, uppers, keys, program, n_aux), devices)
+    groups = list(zip(*(_split(a, devices) for a in (swarm_batch, active, lowers, uppers))))
     traces, times = [], []
     done = 0  # evaluations: the initial positions, then one per iteration
     while done < swarm.iterations + 1:
-        live = min(swarm.chunk, swarm.iterations + 1 - done)
-        states, costs = _swarm_chunk(
-            swarm_batch, active, lowers, uppers, states, jnp.asarray(live), program, mesh, width
+        live = np.int32(min(swarm.chunk, swarm.iterations + 1 - done))
+        out = _side_by_side(
+            [
+                lambda g=g, st=st, live=live: _swarm_chunk(*g, st, live, program, width)
+                for g, st in zip(groups, states)
+            ]
         )
-        traces.append(np.asarray(costs)[:, :live])
+        states = [st for st, _ in out]
+        traces.append(np.concatenate([np.asarray(c) for _, c in out])[:, :live])
         now = time.perf_counter() - t_all
         times += np.linspace(times[-1] if times else 0.0, now, live + 1)[1:].tolist()
-        done += live
+        done += int(live)
         best = float(np.min(traces[-1][:, -1]))
         if bar is not None:
             bar.update(live)
@@ -510,6 +541,7 @@ def fit_many(
     # Stage 2: the polish, `POLISH_SLICE` fits per call of one compiled solve.
     t1 = time.perf_counter()
     # each swarm's best as a polish point (its profiled shift and S beside it) and its NMSE
+    states = _joined(states)
     found = (
         jnp.concatenate([states.global_position, states.global_aux], axis=1),
         states.global_cost,
