@@ -52,7 +52,7 @@ def use_compilation_cache(folder=None) -> pathlib.Path | None:
 
 def use_cpu_cores(cores: int | None = None) -> int:
     """Give JAX's CPU backend one device per core (``cores``, default every core of the
-    machine), so that the fits split each swarm's particles among them. Must run before JAX
+    machine), so that the fits split their batches among them. Must run before JAX
     computes anything; afterwards it changes nothing and returns the devices JAX has."""
     import jax
 
