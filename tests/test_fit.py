@@ -317,16 +317,21 @@ def test_first_fits_of_recordings_stating_their_pressure_or_not_share_a_batch():
         assert batched.params == pytest.approx(alone.params, rel=1e-9)
 
 
+#: The swarm and key of `_three_in_a_batch` (a small swarm: the batch's programs compile fast).
+_BATCH_SWARM, _BATCH_KEY = Swarm(size=12, iterations=10), 3
+
+
 def _three_in_a_batch():
     """One batch of three recordings of N1 (other lengths and frame rates, K 0.9 and 1.1 of
-    the truth for the second and third) fitted from `_start`, key 3, a small swarm."""
+    the truth for the second and third) fitted from `_start` with `_BATCH_SWARM` and
+    `_BATCH_KEY`."""
     truth = vfjax.preset("N1")
     recs = [_recording(truth, t_start=0.0301, noise_px=1.0, name="a")]
     for fps, n, f in ((3000.0, 150, 0.9), (5000.0, 240, 1.1)):
         sim = vfjax.simulate(truth.set(K=f * float(truth.params()["K"])), fps, n, t_start=0.03)
         recs.append(Recording(area=np.clip(np.asarray(sim.area), 0, None), fps=fps, name=str(n)))
-    swarm, key = Swarm(size=12, iterations=10), jax.random.key(3)
-    return recs, fit_many(_start(truth), recs, swarm=swarm, key=key, progress=False)
+    key = jax.random.key(_BATCH_KEY)
+    return recs, fit_many(_start(truth), recs, swarm=_BATCH_SWARM, key=key, progress=False)
 
 
 def _numbers(results) -> list:
@@ -343,9 +348,8 @@ def test_a_fit_in_a_batch_equals_the_fit_alone(three_in_a_batch):
     """Fit 0 of a batch of three recordings (other lengths, frame rates) equals the same fit
     run alone: the same key gives the same numbers, whatever the rest of the batch."""
     truth = vfjax.preset("N1")
-    swarm = Swarm(size=12, iterations=10)
+    swarm, key = _BATCH_SWARM, jax.random.key(_BATCH_KEY)
     recs, batch = three_in_a_batch
-    key = jax.random.key(3)
     alone = fit_many(_start(truth), recs[:1], swarm=swarm, key=key, progress=False)[0]
     # alone, padded with skipped fits to the batch's size (its programs)
     (padded,) = fit_many(_start(truth), recs[:1], swarm=swarm, key=key, min_batch=3)

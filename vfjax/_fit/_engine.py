@@ -155,15 +155,23 @@ def _device_groups(n_batch: int) -> list:
     return devices[:n]
 
 
+def _placed(tree, device):
+    """``tree`` with its array leaves on ``device`` (its other leaves as they are)."""
+    arrays, rest = eqx.partition(tree, eqx.is_array)
+    return eqx.combine(jax.device_put(arrays, device), rest)
+
+
 def _split(tree, devices):
     """``tree``'s array leaves cut along their leading axis into ``len(devices)`` equal
     consecutive parts, the k-th placed on ``devices[k]`` (its other leaves as they are)."""
-    arrays, rest = eqx.partition(tree, eqx.is_array)
     n = len(devices)
 
     def part(k):
-        cut = jax.tree.map(lambda x: x[k * (x.shape[0] // n) : (k + 1) * (x.shape[0] // n)], arrays)
-        return eqx.combine(jax.device_put(cut, devices[k]), rest)
+        def cut(x):
+            size = x.shape[0] // n
+            return x[k * size : (k + 1) * size] if eqx.is_array(x) else x
+
+        return _placed(jax.tree.map(cut, tree), devices[k])
 
     return [part(k) for k in range(n)]
 
@@ -237,7 +245,7 @@ def _polish_slices(batch, active, found, points, from_point, polish: Polish | No
 
     def polish_on(k):
         mine = slices[k::n_dev]
-        return [_polish_batch(*_split(part, devices[k : k + 1])[0], polish) for part in mine]
+        return [_polish_batch(*_placed(part, devices[k]), polish) for part in mine]
 
     done = _side_by_side([lambda k=k: polish_on(k) for k in range(n_dev)])
     return _joined([done[i % n_dev][i // n_dev] for i in range(len(slices))])
