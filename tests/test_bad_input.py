@@ -278,16 +278,25 @@ def test_cli_keeps_compiled_programs_in_a_persistent_cache(tmp_path, cli):
 
 
 def test_cli_interrupt_exits_130_without_a_traceback(tmp_path):
-    """Ctrl-C: one line, exit code 130, and no output folder left half-written."""
+    """Ctrl-C: one line, exit code 130, and no output folder left half-written. Pressed
+    once the run is under way (its first subject simulated and written to the folder it is
+    making), however long the imports took."""
+    import select
+
     proc = subprocess.Popen(
         [sys.executable, "-m", "vfjax", "--no-cache", "run", "--out", "out"],
         cwd=tmp_path,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
-    time.sleep(6.0)  # inside the simulations or the first fit
-    proc.send_signal(signal.SIGINT)
+    ready, _, _ = select.select([proc.stdout], [], [], 300)
+    first = proc.stdout.readline() if ready else ""
+    if not first.startswith("N1: f0"):
+        proc.kill()
+        pytest.fail(f"the run did not start: {first!r} {proc.communicate()[1][-2000:]}")
+    proc.send_signal(signal.SIGINT)  # inside the simulations or the first fit
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err[-2000:]
     assert "Traceback" not in err
