@@ -7,6 +7,7 @@ import logging
 import os
 import pathlib
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -281,24 +282,13 @@ def test_cli_interrupt_exits_130_without_a_traceback(tmp_path):
     """Ctrl-C: one line, exit code 130, and no output folder left half-written. Pressed
     once the run is under way (its first subject simulated and written to the folder it is
     making), however long the imports took."""
-    import select
-
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "vfjax", "--no-cache", "run", "--out", "out"],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    code, err, _ = _ctrl_c_when_ready(
+        ["-m", "vfjax", "--no-cache", "run", "--out", "out"],
+        tmp_path,
+        ready=lambda line: line.startswith("N1: f0"),  # inside the simulations or the first fit
+        timeout=60,
     )
-    ready, _, _ = select.select([proc.stdout], [], [], 300)
-    first = proc.stdout.readline() if ready else ""
-    if not first.startswith("N1: f0"):
-        proc.kill()
-        pytest.fail(f"the run did not start: {first!r} {proc.communicate()[1][-2000:]}")
-    proc.send_signal(signal.SIGINT)  # inside the simulations or the first fit
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err[-2000:]
+    assert code == 130, err[-2000:]
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1] == (
         "vfjax: interrupted; the output folder is left as it was"
@@ -307,22 +297,33 @@ def test_cli_interrupt_exits_130_without_a_traceback(tmp_path):
     assert not list(tmp_path.glob(".out.partial-*"))
 
 
-def _ctrl_c_when_ready(script, folder, check=None):
-    """Run the Python ``script`` in ``folder``, press Ctrl-C once it prints "ready" (after
-    ``check()``, if given, holds), and return its exit code, its stderr and the seconds it
-    took to end after the Ctrl-C."""
+def _is_ready(line: str) -> bool:
+    return line.strip() == "ready"
+
+
+def _ctrl_c_when_ready(args, folder, check=None, ready=_is_ready, timeout=30):
+    """Run Python with ``args`` (a list: the command line's; a string: a script) in
+    ``folder``, press Ctrl-C once its first line of output passes ``ready`` (default: it is
+    "ready") and ``check()``, if given, holds, and return its exit code, its stderr and the
+    seconds it took to end after the Ctrl-C (at most ``timeout``). Fails, the process
+    killed, if no such line comes within 300 s."""
     proc = subprocess.Popen(
-        [sys.executable, "-c", script],
+        [sys.executable, *(["-c", args] if isinstance(args, str) else args)],
         cwd=folder,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
-    assert proc.stdout.readline().strip() == "ready"
+    waiting, _, _ = select.select([proc.stdout], [], [], 300)
+    first = proc.stdout.readline() if waiting else ""
+    if not ready(first):
+        proc.kill()
+        pytest.fail(f"no start: first line {first!r}; {proc.communicate()[1][-2000:]}")
     assert check is None or check()
     start = time.monotonic()
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=30)
+    _, err = proc.communicate(timeout=timeout)
     return proc.returncode, err, time.monotonic() - start
 
 
