@@ -79,8 +79,7 @@ def pytest_runtest_logstart(nodeid, location):
 
 def pytest_runtest_logreport(report):
     if _log is not None and report.when in ("setup", "call", "teardown"):
-        _log.test = report.nodeid
-        _log.write("test", report.when, float(report.duration))
+        _log.write("test", report.when, float(report.duration))  # the test logstart named
 
 
 def pytest_unconfigure(config):
@@ -103,8 +102,9 @@ def summarise(folder: pathlib.Path, top: int = 25) -> None:
             kind, test, name, seconds = line.split("\t")
             seconds = float(seconds)
             if kind == "compile":
-                by_program[_program(name)][0] += 1
-                by_program[_program(name)][1] += seconds
+                program = by_program[_program(name)]
+                program[0] += 1
+                program[1] += seconds
                 by_test[test][0] += 1
                 by_test[test][1] += seconds
             else:
