@@ -422,6 +422,43 @@ def test_an_interrupt_inside_a_finaliser_ends_the_run_without_a_traceback(tmp_pa
     assert not list(tmp_path.glob(".out.partial-*"))
 
 
+def test_an_interrupt_while_vfjax_is_imported_ends_without_a_traceback(tmp_path):
+    """The installed ``vfjax`` command (`_vfjax_cli.main`) imports the package after its
+    own guard: a Ctrl-C while JAX is still being imported (held there by an import hook that
+    says "ready" and waits) ends with the command line's one line and code 130, no
+    traceback and no output."""
+    from importlib.metadata import entry_points
+
+    (command,) = [e for e in entry_points(group="console_scripts") if e.name == "vfjax"]
+    assert command.value == "_vfjax_cli:main"
+    script = textwrap.dedent(
+        """
+        import signal, sys, time
+
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # as a terminal gives it
+
+        class SlowJax:  # a meta-path finder that holds the import of jax
+            def find_spec(self, name, path=None, target=None):
+                if name == "jax":
+                    print("ready", flush=True)
+                    time.sleep(120)
+                return None
+
+        sys.meta_path.insert(0, SlowJax())
+        sys.argv = ["vfjax", "--no-cache", "simulate", "N1", "-o", "gaw.csv"]
+        from _vfjax_cli import main
+
+        raise SystemExit(main())
+        """
+    )
+    code, err, waited = _ctrl_c_when_ready(script, tmp_path)
+    assert code == 130, err
+    assert "Traceback" not in err
+    assert err.strip() == "vfjax: interrupted; the output folder is left as it was"
+    assert waited < 20.0
+    assert not (tmp_path / "gaw.csv").exists()
+
+
 # ------------------------------------------------------------------------------ security
 def _saved_fit(tmp_path):
     """A saved fit result, made without fitting (the file format is what is under test)."""
