@@ -397,7 +397,7 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
         "long": (np.array([3.0, 1.2]), np.array([[2.5, 2.0], [1.1, 0.9]])),
     }
 
-    def fake(problem, y0, starts, frees, bases, pool, data, steps, mesh):
+    def fake(problem, y0, starts, frees, bases, pool, data, steps):
         cc, cj = results[problem]
         yj = np.stack([np.stack([np.full(2, c) for c in row]) for row in cj])
         return cc, np.zeros((2, 2)), cj, yj

@@ -24,8 +24,10 @@ import numpy as np
 from scipy import stats
 
 from .._fit import FitResult, search_range
+from .._fit._engine import placed, side_by_side
 from .._fit._polish import levenberg_marquardt
 from .._fit._problem import prepare
+from .._programs import program
 from .._sampling import length_bucket
 from ..compare import noise_level
 from ..descriptors import describe, fundamental_frequency
@@ -162,7 +164,7 @@ class _Simulator(eqx.Module):
         return jnp.where(sim.complete, sim.area, jnp.nan)
 
 
-@eqx.filter_jit
+@program
 def _jittered_gaws(simulator, model, shift, offsets, factors):
     """The GAWs of ``model`` (whose last two terms are a `TimingJitter` and an
     `AmplitudeJitter`) with each row of offsets and factors; NaN rows for failed
@@ -361,12 +363,12 @@ class _Jobs:
     rank: jax.Array  # (jobs,) which of its candidate's entries a job starts from (-1: none)
 
 
-@eqx.filter_jit
+@program
 def _start(problem, z):
     return problem.start(z)
 
 
-@eqx.filter_jit
+@program
 def _refit_control(problem, y0, free, basis, steps: int):
     """The control's refit on the problem's own recording: (point, NMSE)."""
     return levenberg_marquardt(dataclasses.replace(problem, free=free).residual, y0, basis, steps)
@@ -383,13 +385,13 @@ def settled(jobs: _Jobs, steps: int) -> _Jobs:
     return dataclasses.replace(jobs, y0=y)
 
 
-@eqx.filter_jit
-def _statistics(problem, y0, starts, frees, bases, pool, data, steps: int, mesh):
+@program
+def _statistics(problem, y0, starts, frees, bases, pool, data, steps: int):
     """For each recording (rows of ``data``): the control's NMSE and point, and each job's
     NMSE (never above the control's) and point. The control takes ``2 * steps`` steps (one
     refit beside the many jobs: a control left short of its optimum would hand every
     candidate a fall of its own), and the jobs without a start of their own continue from
-    its optimum. With a ``mesh``, each device refits its share of the recordings.
+    its optimum. (`run_statistics` gives each device its share of the recordings.)
 
     The control is then refitted again (``steps`` steps) from each candidate's best refit
     with its effect switched off (its other coordinates kept), and takes the best of those
@@ -460,22 +462,15 @@ def _statistics(problem, y0, starts, frees, bases, pool, data, steps: int, mesh)
         below = cj <= cc
         return cc, yc, jnp.where(below, cj, cc), jnp.where(below[:, None], yj, yc)
 
-    def run(data):
-        return jax.vmap(one)(data)
-
-    if mesh is None:
-        return run(data)
-    spec = jax.sharding.PartitionSpec(mesh.axis_names[0])
-    return jax.shard_map(run, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)(data)
+    return jax.vmap(one)(data)
 
 
-def _mesh(n_recordings: int):
-    """A mesh of the default backend's devices over which to split ``n_recordings``
-    recordings, or None (one device, or a count that does not divide among them)."""
+def _shares(n_recordings: int) -> list:
+    """The devices among which ``n_recordings`` recordings are split in equal shares of
+    consecutive rows: the default backend's devices where the count divides among them,
+    else the first one."""
     devices = jax.devices()
-    if len(devices) < 2 or n_recordings % len(devices):
-        return None
-    return jax.sharding.Mesh(np.array(devices), ("recordings",))
+    return devices if n_recordings % len(devices) == 0 else devices[:1]
 
 
 def _start_values(cand: Candidate, model, whole_circle: bool = False) -> list[dict]:
@@ -730,28 +725,34 @@ def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
     controls = np.full((len(data), n_cands), np.nan)
     best_cost = np.full((len(data), n_cands), np.inf)
     best_y = [None] * n_cands
+    devices = _shares(len(data))
+    parts = np.split(np.asarray(data), len(devices))
     for jobs in groups:
-        cc, _, cj, yj = (
-            np.asarray(a)
-            for a in _statistics(
-                jobs.problem,
-                jobs.y0,
-                jobs.starts,
-                jobs.frees,
-                jobs.bases,
-                (
-                    jobs.pool,
-                    jobs.pool_free,
-                    jobs.pool_owner,
-                    jobs.rank,
-                    jnp.asarray(jobs.owner, dtype=jnp.int32),
-                    jnp.asarray(_members(jobs.owner, n_cands), dtype=jnp.int32),
-                ),
-                jnp.asarray(data),
-                int(steps),
-                _mesh(len(data)),
-            )
+        args = (
+            jobs.problem,
+            jobs.y0,
+            jobs.starts,
+            jobs.frees,
+            jobs.bases,
+            (
+                jobs.pool,
+                jobs.pool_free,
+                jobs.pool_owner,
+                jobs.rank,
+                jnp.asarray(jobs.owner, dtype=jnp.int32),
+                jnp.asarray(_members(jobs.owner, n_cands), dtype=jnp.int32),
+            ),
         )
+        # each device refits its share of the recordings with the one-device program, in
+        # a thread of its own: a recording's statistic has the same bits on any number of
+        # devices
+        out = side_by_side(
+            [
+                lambda d=d, rows=rows, a=args: _statistics(*placed((*a, rows), d), int(steps))
+                for d, rows in zip(devices, parts)
+            ]
+        )
+        cc, _, cj, yj = (np.concatenate([np.asarray(o[i]) for o in out]) for i in range(4))
         owner = np.asarray(jobs.owner)
         for k in np.unique(owner[owner >= 0]):
             rows = np.flatnonzero(owner == k)

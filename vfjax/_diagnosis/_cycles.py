@@ -18,6 +18,7 @@ import numpy as np
 from scipy import stats
 
 from .._fit._polish import levenberg_marquardt
+from .._programs import program
 from ..descriptors import cycle_starts
 
 #: Levenberg-Marquardt steps of the per-cycle fit (the fitted parameters and the cycles'
@@ -124,7 +125,7 @@ class CycleVariability:
         )
 
 
-@eqx.filter_jit
+@program
 def _per_cycle_fit(problem, gaw, y0, basis, period, steps: int):
     """The fit of ``problem`` (its model with a `TimingJitter` and an `AmplitudeJitter` last,
     one slot each per cycle) to ``gaw`` (padded like the problem's), continued from its

@@ -12,6 +12,7 @@ import numpy as np
 from scipy import stats
 
 from .._fit import FitResult
+from .._programs import program
 from ..descriptors import fundamental_frequency
 from ..integrator import SampledGrid, sampled_grid, simulate_frames, window_size
 from ..recording import Recording
@@ -73,7 +74,7 @@ def _sampler(result: FitResult) -> _Sampler:
     return _Sampler(sampled_grid(result.sampling), *window_size(result.sampling))
 
 
-@eqx.filter_jit
+@program
 def _columns(sampler, names, tested, models, points, tangents):
     """GAWs and their derivatives, one forward-mode simulation per job, all jobs side by side
     (one vmapped jvp: one copy of the simulator in the program, whatever the candidates).

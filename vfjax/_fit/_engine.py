@@ -35,13 +35,14 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array
 
+from .._programs import program
 from ..model import VocalFoldModel
 from ..recording import Recording
 from ..terms.base import AbstractFoldPair
 from ._options import Polish, Swarm
+from ._polish import RESULT_NAMES
 from ._polish import polish as _polish_one
 from ._problem import (
     PLAUSIBLE,
@@ -134,7 +135,7 @@ def _swarm_start(lowers, uppers, keys, swarm: Swarm, n_aux: int):
     return jax.vmap(lambda x, k: unvisited(x, k, n_aux))(positions, keys)
 
 
-@eqx.filter_jit
+@program
 def _swarm_chunk(batch, active, lowers, uppers, states, live, swarm: Swarm, width: int):
     def costs(x):
         return _swarm_costs(batch, active, x, width)
@@ -155,7 +156,7 @@ def _device_groups(n_batch: int) -> list:
     return devices[:n]
 
 
-def _placed(tree, device):
+def placed(tree, device):
     """``tree`` with its array leaves on ``device`` (its other leaves as they are)."""
     arrays, rest = eqx.partition(tree, eqx.is_array)
     return eqx.combine(jax.device_put(arrays, device), rest)
@@ -171,7 +172,7 @@ def _split(tree, devices):
             size = x.shape[0] // n
             return x[k * size : (k + 1) * size] if eqx.is_array(x) else x
 
-        return _placed(jax.tree.map(cut, tree), devices[k])
+        return placed(jax.tree.map(cut, tree), devices[k])
 
     return [part(k) for k in range(n)]
 
@@ -183,7 +184,7 @@ def _joined(parts):
     return jax.tree.map(lambda *xs: jnp.concatenate([jax.device_put(x, home) for x in xs]), *parts)
 
 
-def _side_by_side(calls: Sequence[Callable]) -> list:
+def side_by_side(calls: Sequence[Callable]) -> list:
     """Each of ``calls`` (no arguments; each computes on its own device) run to its end,
     in one thread each where there are several (a CPU device computes in the thread that
     calls it; XLA releases the GIL), and their outputs in order."""
@@ -245,9 +246,9 @@ def _polish_slices(batch, active, found, points, from_point, polish: Polish | No
 
     def polish_on(k):
         mine = slices[k::n_dev]
-        return [_polish_batch(*_placed(part, devices[k]), polish) for part in mine]
+        return [_polish_batch(*placed(part, devices[k]), polish) for part in mine]
 
-    done = _side_by_side([lambda k=k: polish_on(k) for k in range(n_dev)])
+    done = side_by_side([lambda k=k: polish_on(k) for k in range(n_dev)])
     return _joined([done[i % n_dev][i // n_dev] for i in range(len(slices))])
 
 
@@ -259,7 +260,7 @@ def _polish_slices(batch, active, found, points, from_point, polish: Polish | No
 # point) is data: one program serves the first polish and every later stage of a length
 # bucket. The swarm's best comes with its polish point and cost (`Problem.swarm_cost`), so
 # that only an earlier stage's point is simulated before the solve.
-@eqx.filter_jit
+@program
 def _polish_batch(batch, active, found, points, from_point, polish: Polish | None):
     """Each fit's polish from its swarm's best ``found`` (its polish points and NMSEs) or,
     where ``from_point``, from ``points`` (full points of the polish's coordinates: an
@@ -295,21 +296,11 @@ def _polish_batch(batch, active, found, points, from_point, polish: Polish | Non
     return jax.lax.map(one, (batch, active, found, points, from_point))
 
 
-def _result_name(result, index) -> str:
-    """optimistix's result code of member ``index`` as a plain string."""
-    for name in (
-        "successful",
-        "nonlinear_max_steps_reached",
-        "nonlinear_divergence",
-        "singular",
-        "breakdown",
-        "stagnation",
-        "nonfinite",
-    ):
-        member = getattr(optx.RESULTS, name, None)
-        if member is not None and bool(np.asarray(result == member)[index]):
-            return name.removeprefix("nonlinear_")
-    return "unknown"
+def _result_name(codes, index) -> str:
+    """The optimistix result of member ``index`` of the polish's codes (`result_index`) as a
+    plain string."""
+    code = int(np.asarray(codes)[index])
+    return RESULT_NAMES[code].removeprefix("nonlinear_") if code < len(RESULT_NAMES) else "unknown"
 
 
 def _windows(recording: Recording, period: float) -> list[int]:
@@ -526,7 +517,7 @@ def fit_many(
     done = 0  # evaluations: the initial positions, then one per iteration
     while done < swarm.iterations + 1:
         live = np.int32(min(swarm.chunk, swarm.iterations + 1 - done))
-        out = _side_by_side(
+        out = side_by_side(
             [
                 lambda g=g, st=st, live=live: _swarm_chunk(*g, st, live, program, width)
                 for g, st in zip(groups, states)

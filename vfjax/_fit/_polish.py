@@ -127,9 +127,35 @@ def _with_cost(y, problem: Problem):
     return r, jnp.sum(jax.lax.stop_gradient(r) ** 2)
 
 
+#: optimistix's result codes that a polish reports, by their index in `polish`'s output
+#: (any other is "unknown").
+RESULT_NAMES = (
+    "successful",
+    "nonlinear_max_steps_reached",
+    "nonlinear_divergence",
+    "singular",
+    "breakdown",
+    "stagnation",
+    "nonfinite",
+)
+
+
+def result_index(result) -> jax.Array:
+    """The index in `RESULT_NAMES` of an `optimistix.RESULTS` item (traced), or its length
+    for a code not among them: a plain integer array, which a stored program returns
+    (`vfjax._programs`)."""
+    members = [getattr(optx.RESULTS, n, None) for n in RESULT_NAMES]
+    index = jnp.asarray(len(RESULT_NAMES), jnp.int32)
+    for i, member in reversed(list(enumerate(members))):
+        if member is not None:
+            index = jnp.where(result == member, i, index)
+    return index
+
+
 def polish(problem: Problem, y0, cost0, options: Polish):
     """The best point the solver finds from ``y0`` (whose NMSE is ``cost0``), its NMSE, the
-    steps taken and the solver's result code (one problem; the engine vmaps it)."""
+    steps taken and the solver's result (its index in `RESULT_NAMES`, `result_index`; one
+    problem; the engine vmaps it)."""
     sol = optx.least_squares(
         _with_cost,
         optx.BestSoFarLeastSquares(options.solver),
@@ -143,4 +169,4 @@ def polish(problem: Problem, y0, cost0, options: Polish):
     # the best point seen (the start included), with its NMSE as the auxiliary output
     better = jnp.isfinite(sol.aux) & (sol.aux <= cost0)
     y = jnp.where(better, sol.value, y0)
-    return y, jnp.where(better, sol.aux, cost0), sol.stats["num_steps"], sol.result
+    return y, jnp.where(better, sol.aux, cost0), sol.stats["num_steps"], result_index(sol.result)

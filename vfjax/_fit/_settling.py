@@ -13,10 +13,10 @@ noise explains.
 import dataclasses
 import math
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._programs import program
 from ..descriptors import noise_level
 from ..recording import Recording
 from ._polish import levenberg_marquardt
@@ -81,7 +81,7 @@ class Settling:
 _STEPS = 10
 
 
-@eqx.filter_jit
+@program
 def _aligned_nmse(problem, shift):
     # the shift (and S) polished, from ``shift`` (s) at the fit's own S where it is given
     # (the fit's own, at its warm-up) and from the grid's best shift where it is NaN: half a

@@ -16,9 +16,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from .._programs import returned
 from ._options import Swarm
 
 
+@returned
 class SwarmState(NamedTuple):
     """Positions, velocities and bests of a swarm (all in the search space), with what the
     cost function found beside each best's cost (``aux``: for a fit, the rest of the
