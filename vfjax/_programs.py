@@ -126,7 +126,7 @@ def _describe(x, out: list) -> None:
         for name in fields:
             out.append(name)
             _describe(getattr(x, name), out)
-    elif isinstance(x, (tuple, list)) and not hasattr(x, "_fields"):
+    elif isinstance(x, (tuple, list)):  # named tuples are described above
         out.append(f"{type(x).__name__}[{len(x)}]")
         for item in x:
             _describe(item, out)
@@ -256,12 +256,9 @@ def _load(fn, folder, signature, in_tree, static, leaves):
     """The jitted call of the stored program of ``signature`` (exported and stored first if
     absent), or False where it cannot be exported."""
     path = folder / f"{fn.__name__}-{hashlib.sha256(signature.encode()).hexdigest()}.hlo"
-    exported = None
     try:
         exported = jax.export.deserialize(bytearray(path.read_bytes()))
-    except FileNotFoundError:
-        pass
-    except Exception:  # a file from another writer or damaged: exported again below
+    except Exception:  # absent, damaged or from another writer: exported below
         exported = None
     if exported is None:
         try:
