@@ -49,7 +49,7 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     0.73 against 0.0005).
 
     A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and
-    the solve traces anywhere (inside `jax.shard_map` too). Each step: the Jacobian's
+    the solve traces inside any vmap. Each step: the Jacobian's
     columns by forward mode (one batched jvp, which also gives the residual) and damped
     Gauss-Newton steps with Marquardt's scaling at two dampings five decades apart about
     the current one (`_DAMPING_TRIALS`: 1e-4 times it and 10 times it; the first step
@@ -60,9 +60,10 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     cycle reaching contact); the smaller trial, nearly Gauss-Newton, lets every step go
     far along a flat valley of the error.
 
-    The trials run in a `lax.map`, not a `vmap`: vmapped, the statistic's program split
-    over two CPU devices (`jax.shard_map`) hung (jax 0.10.2: the first call on the shared
-    syn_gap's fit with its gap never returned, every XLA thread idle)."""
+    The trials run in a `lax.map`, one after the other: the Jacobian's columns already fill
+    the vector lanes, and vmapped trials run no faster on a CPU (a batch of 16 recordings of
+    the calibration's statistic on the shared syn_gap's first fit, 2 CPU devices: 8.4 s
+    either way, benchmarks/README.md)."""
 
     if steps < 1:
         c0 = jnp.sum(residual(y0) ** 2)
