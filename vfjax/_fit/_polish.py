@@ -48,22 +48,21 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
     alone can lie far above the start's (a null recording of the shared syn_gap's fit:
     0.73 against 0.0005).
 
-    A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and
-    the solve traces inside any vmap. Each step: the Jacobian's
-    columns by forward mode (one batched jvp, which also gives the residual) and damped
-    Gauss-Newton steps with Marquardt's scaling at two dampings five decades apart about
-    the current one (`_DAMPING_TRIALS`: 1e-4 times it and 10 times it; the first step
-    tries 1e-4 and 10), evaluated one after the other; the better one is taken if it improves, and
-    its damping becomes the current one; if neither improves, the damping rises by
-    `_DAMPING_RISE`. The Jacobian costs most of a step. The first step's damping of 10
-    steps short of a jump that a nearly undamped step crosses (a grazing closure: one more
-    cycle reaching contact); the smaller trial, nearly Gauss-Newton, lets every step go
-    far along a flat valley of the error.
+    A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and the
+    solve traces inside any vmap. Each step: the Jacobian's columns by forward mode (one batched
+    jvp, which also gives the residual) and damped Gauss-Newton steps with Marquardt's scaling
+    at two dampings five decades apart about the current one (`_DAMPING_TRIALS`: 1e-4 times it
+    and 10 times it; the first step tries 1e-4 and 10), evaluated one after the other; the
+    better one is taken if it improves, and its damping becomes the current one; if neither
+    improves, the damping rises by `_DAMPING_RISE`. The Jacobian costs most of a step. The first
+    step's damping of 10 steps short of a jump that a nearly undamped step crosses (a grazing
+    closure: one more cycle reaching contact); the smaller trial, nearly Gauss-Newton, lets
+    every step go far along a flat valley of the error.
 
-    The trials run in a `lax.map`, one after the other: the Jacobian's columns already fill
-    the vector lanes, and vmapped trials run no faster on a CPU (a batch of 16 recordings of
-    the calibration's statistic on the shared syn_gap's first fit, 2 CPU devices: 8.4 s
-    either way, benchmarks/README.md)."""
+    The trials run in a `lax.map`, one after the other: vmapped, they run no faster on a CPU
+    (a batch of 16 recordings of the calibration's statistic on the shared syn_gap's first
+    fit, 2 CPU devices, 2026-12-02: 8.3-8.4 s in a `lax.map`, 8.4-8.7 s vmapped) and round
+    otherwise (that batch's refit errors moved by up to 8 %)."""
 
     if steps < 1:
         c0 = jnp.sum(residual(y0) ** 2)
