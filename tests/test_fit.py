@@ -44,6 +44,7 @@ def n1_fit():
     return truth, rec, fit(_start(truth), rec, progress=False)
 
 
+@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
 def test_recovers_parameters_without_noise(n1_fit):
     truth, _, result = n1_fit
     errs = _rel_errors(result, truth)
@@ -51,6 +52,7 @@ def test_recovers_parameters_without_noise(n1_fit):
     assert result.nmse < 1e-6
 
 
+@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
 def test_polish_never_worse_than_the_swarm(n1_fit):
     _, _, result = n1_fit
     assert np.all(np.diff(result.pso_trace) <= 0)
@@ -62,6 +64,7 @@ def test_polish_never_worse_than_the_swarm(n1_fit):
     assert result.optimistix_result in ("successful", "max_steps_reached")
 
 
+@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
 def test_fitted_gaw_reproduces_the_recording(n1_fit):
     _, rec, result = n1_fit
     gaw = result.fitted_gaw(rec)
@@ -129,6 +132,7 @@ def test_same_key_same_result_and_callback():
     assert seen[-1][1] == a.pso_trace[-1]
 
 
+@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
 def test_json_round_trip_without_loss(n1_fit, tmp_path):
     _, rec, result = n1_fit
     path = tmp_path / "fit.json"
@@ -344,6 +348,7 @@ def three_in_a_batch():
     return _three_in_a_batch()
 
 
+@pytest.mark.xdist_group("three_in_a_batch")  # one worker computes the fixture
 def test_a_fit_in_a_batch_equals_the_fit_alone(three_in_a_batch):
     """Fit 0 of a batch of three recordings (other lengths, frame rates) equals the same fit
     run alone: the same key gives the same numbers, whatever the rest of the batch."""
@@ -375,6 +380,7 @@ print(json.dumps(test_fit._numbers(test_fit._three_in_a_batch()[1])))
 """
 
 
+@pytest.mark.xdist_group("three_in_a_batch")  # one worker computes the fixture
 def test_a_batch_split_over_two_devices_equals_it_on_one(three_in_a_batch):
     """The batch of three (four fits with its padding) in a process of two CPU devices, as
     the command line runs: each device fits its two, and every number equals the batch's on
@@ -434,6 +440,7 @@ def continued():
     return long, short, both, swarm, key
 
 
+@pytest.mark.xdist_group("continued")  # one worker computes the fixture
 def test_a_long_recording_is_fitted_by_continuation_in_its_length(continued):
     """The long recording: the swarm and a first polish fit its first 16 cycles, the next
     polish all of them; the fit reaches the error of the true parameters polished (a
@@ -457,6 +464,7 @@ def test_a_long_recording_is_fitted_by_continuation_in_its_length(continued):
 
 
 @pytest.mark.slow  # a fit's independence of its batch is checked by default in a short batch
+@pytest.mark.xdist_group("continued")  # one worker computes the fixture
 def test_each_fit_of_a_continued_batch_equals_its_fit_alone(continued):
     """In one batch with a short recording, each fit equals its fit alone."""
     long, short, both, swarm, key = continued
@@ -469,6 +477,7 @@ def test_each_fit_of_a_continued_batch_equals_its_fit_alone(continued):
         assert fitted.params == pytest.approx(alone.params, rel=rel)
 
 
+@pytest.mark.xdist_group("continued")  # one worker computes the fixture
 def test_a_long_fit_beside_one_of_more_stages_is_its_fit_alone(continued):
     """Beside a recording of about 75 cycles (three stages: 16, 64, all), the 31-cycle
     recording's fit (two stages) is its fit beside the short one: once its own windows have
@@ -604,6 +613,7 @@ def test_no_fit_leaves_the_plausible_pressure_range():
     assert wide.nmse < 1e-5
 
 
+@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
 def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     """`settling`: N1 closes every cycle (the hold resets its state), so after 0.2 s its fit
     leaves the same error; without flow separation its oscillation decays and never closes
