@@ -37,6 +37,10 @@ def _rel_errors(result, truth):
     return {n: abs(result.params[n] / float(p[n]) - 1.0) for n in ("S", "K", "C_f")}
 
 
+#: The tests of `n1_fit` run on one worker, which computes the fixture once.
+_WITH_N1_FIT = pytest.mark.xdist_group("n1_fit")
+
+
 @pytest.fixture(scope="module")
 def n1_fit():
     truth = vfjax.preset("N1")
@@ -44,7 +48,7 @@ def n1_fit():
     return truth, rec, fit(_start(truth), rec, progress=False)
 
 
-@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
+@_WITH_N1_FIT
 def test_recovers_parameters_without_noise(n1_fit):
     truth, _, result = n1_fit
     errs = _rel_errors(result, truth)
@@ -52,7 +56,7 @@ def test_recovers_parameters_without_noise(n1_fit):
     assert result.nmse < 1e-6
 
 
-@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
+@_WITH_N1_FIT
 def test_polish_never_worse_than_the_swarm(n1_fit):
     _, _, result = n1_fit
     assert np.all(np.diff(result.pso_trace) <= 0)
@@ -64,7 +68,7 @@ def test_polish_never_worse_than_the_swarm(n1_fit):
     assert result.optimistix_result in ("successful", "max_steps_reached")
 
 
-@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
+@_WITH_N1_FIT
 def test_fitted_gaw_reproduces_the_recording(n1_fit):
     _, rec, result = n1_fit
     gaw = result.fitted_gaw(rec)
@@ -132,7 +136,7 @@ def test_same_key_same_result_and_callback():
     assert seen[-1][1] == a.pso_trace[-1]
 
 
-@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
+@_WITH_N1_FIT
 def test_json_round_trip_without_loss(n1_fit, tmp_path):
     _, rec, result = n1_fit
     path = tmp_path / "fit.json"
@@ -343,12 +347,16 @@ def _numbers(results) -> list:
     return [[r.nmse, r.time_shift, *r.params.values(), *r.pso_trace] for r in results]
 
 
+#: The tests of `three_in_a_batch` run on one worker, which computes the fixture once.
+_WITH_THREE_IN_A_BATCH = pytest.mark.xdist_group("three_in_a_batch")
+
+
 @pytest.fixture(scope="module")
 def three_in_a_batch():
     return _three_in_a_batch()
 
 
-@pytest.mark.xdist_group("three_in_a_batch")  # one worker computes the fixture
+@_WITH_THREE_IN_A_BATCH
 def test_a_fit_in_a_batch_equals_the_fit_alone(three_in_a_batch):
     """Fit 0 of a batch of three recordings (other lengths, frame rates) equals the same fit
     run alone: the same key gives the same numbers, whatever the rest of the batch."""
@@ -380,7 +388,7 @@ print(json.dumps(test_fit._numbers(test_fit._three_in_a_batch()[1])))
 """
 
 
-@pytest.mark.xdist_group("three_in_a_batch")  # one worker computes the fixture
+@_WITH_THREE_IN_A_BATCH
 def test_a_batch_split_over_two_devices_equals_it_on_one(three_in_a_batch):
     """The batch of three (four fits with its padding) in a process of two CPU devices, as
     the command line runs: each device fits its two, and every number equals the batch's on
@@ -429,6 +437,10 @@ def test_a_first_fit_that_matches_the_start_up_is_made_again_after_a_longer_warm
     assert both[1].params == pytest.approx(first.params, rel=1e-6)
 
 
+#: The tests of `continued` run on one worker, which computes the fixture once.
+_WITH_CONTINUED = pytest.mark.xdist_group("continued")
+
+
 @pytest.fixture(scope="module")
 def continued():
     """A recording of about 31 cycles (N3, 0.15 s at 2 kHz, closure jitter) and a short one
@@ -440,7 +452,7 @@ def continued():
     return long, short, both, swarm, key
 
 
-@pytest.mark.xdist_group("continued")  # one worker computes the fixture
+@_WITH_CONTINUED
 def test_a_long_recording_is_fitted_by_continuation_in_its_length(continued):
     """The long recording: the swarm and a first polish fit its first 16 cycles, the next
     polish all of them; the fit reaches the error of the true parameters polished (a
@@ -464,7 +476,7 @@ def test_a_long_recording_is_fitted_by_continuation_in_its_length(continued):
 
 
 @pytest.mark.slow  # a fit's independence of its batch is checked by default in a short batch
-@pytest.mark.xdist_group("continued")  # one worker computes the fixture
+@_WITH_CONTINUED
 def test_each_fit_of_a_continued_batch_equals_its_fit_alone(continued):
     """In one batch with a short recording, each fit equals its fit alone."""
     long, short, both, swarm, key = continued
@@ -477,7 +489,7 @@ def test_each_fit_of_a_continued_batch_equals_its_fit_alone(continued):
         assert fitted.params == pytest.approx(alone.params, rel=rel)
 
 
-@pytest.mark.xdist_group("continued")  # one worker computes the fixture
+@_WITH_CONTINUED
 def test_a_long_fit_beside_one_of_more_stages_is_its_fit_alone(continued):
     """Beside a recording of about 75 cycles (three stages: 16, 64, all), the 31-cycle
     recording's fit (two stages) is its fit beside the short one: once its own windows have
@@ -613,7 +625,7 @@ def test_no_fit_leaves_the_plausible_pressure_range():
     assert wide.nmse < 1e-5
 
 
-@pytest.mark.xdist_group("n1_fit")  # one worker computes the fixture
+@_WITH_N1_FIT
 def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     """`settling`: N1 closes every cycle (the hold resets its state), so after 0.2 s its fit
     leaves the same error; without flow separation its oscillation decays and never closes
