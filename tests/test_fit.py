@@ -646,7 +646,9 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     assert sustained.noise_nmse == pytest.approx(unchanged, rel=0.3)
     decaying = vfjax.preset("N1").without(vfjax.terms.paper.FlowSeparation)
     start_up = _recording(decaying, t_start=0.0213, name="no_flow_separation")
-    fitted = fit(decaying, start_up, ("S",), progress=False)
+    # S alone, from the truth: the polish finds it (no swarm to compile or run)
+    at_truth = vfjax.Swarm(size=4, iterations=0)
+    fitted = fit(decaying, start_up, ("S",), swarm=at_truth, progress=False)
     transient = vfjax.settling(fitted, start_up)
     assert fitted.nmse < 1e-4 and not transient.settled
     assert transient.nmse > 100 * fitted.nmse
@@ -663,8 +665,9 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     # a slow camera: at 2 000 fps N3's open phase holds too few runs of five open frames for
     # the residual to show its 2 px noise; the fit's own error then bounds the noise's, so
     # the rounding of two realignments is not read as a start-up
-    slow = vfjax.datasets.demo_recording("N3", fps=2000.0, n_frames=101, seed=3)
-    fitted = fit(vfjax.preset("N3"), slow, ("S",), progress=False)
+    # (the sampling and swarm of test_simulate's slow camera: the same compiled fit)
+    slow = vfjax.datasets.demo_recording("N3", fps=2000.0, n_frames=201, seed=3)
+    fitted = fit(vfjax.preset("N3"), slow, ("S",), swarm=at_truth, progress=False)
     assert vfjax.descriptors.noise_level(slow.area, fitted.fitted_gaw()) == 0.0
     closing = vfjax.settling(fitted, slow)
     assert closing.noise_nmse == closing.fit_nmse and closing.settled, closing
