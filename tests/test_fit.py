@@ -646,7 +646,8 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     assert sustained.noise_nmse == pytest.approx(unchanged, rel=0.3)
     decaying = vfjax.preset("N1").without(vfjax.terms.paper.FlowSeparation)
     start_up = _recording(decaying, t_start=0.0213, name="no_flow_separation")
-    # S alone, from the truth: the polish finds it (no swarm to compile or run)
+    # S alone, from the truth: four particles evaluated once, no swarm iterations, and the
+    # polish finds S
     at_truth = vfjax.Swarm(size=4, iterations=0)
     fitted = fit(decaying, start_up, ("S",), swarm=at_truth, progress=False)
     transient = vfjax.settling(fitted, start_up)
