@@ -56,6 +56,7 @@ from ._fit import (  # noqa: E402
 )
 from ._sampling import DEFAULT_SUBSTEPS, Sampling, default_substeps, length_bucket  # noqa: E402
 from ._validate import Constraint, as_parameter  # noqa: E402
+from ._version import __version__  # noqa: E402, F401  (vfjax.__version__)
 from .cost import nmse  # noqa: E402
 from .descriptors import estimate_closure_duration  # noqa: E402
 from .integrator import (  # noqa: E402
@@ -99,8 +100,6 @@ from .terms import (  # noqa: E402
     TanhDamping,
     TimingJitter,
 )
-
-__version__ = "0.1.0"
 
 __all__ = [
     "cohort",

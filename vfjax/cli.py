@@ -12,7 +12,6 @@ import time
 
 import numpy as np
 
-from . import __version__
 from ._fit._options import Swarm
 from ._runtime import (  # noqa: F401  (the command line's settings, importable from here)
     CACHE_MAX_BYTES,
@@ -21,6 +20,7 @@ from ._runtime import (  # noqa: F401  (the command line's settings, importable 
     use_compilation_cache,
     use_cpu_cores,
 )
+from ._version import __version__
 
 
 def _simulate_preset(name, fps, n_frames, t_start):

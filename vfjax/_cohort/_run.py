@@ -8,6 +8,7 @@ import time
 from os import PathLike
 from typing import TYPE_CHECKING
 
+from .._version import __version__
 from ._inputs import CohortEntry, content_key, find_entries, read_manifest
 from ._options import DEFAULT_OPTIONS, CohortOptions
 from ._report import write_cohort_report
@@ -42,8 +43,6 @@ def _batches(tasks: list[Task], size: int, split: int = 1) -> list[list[Task]]:
 
 
 def _settings(options: CohortOptions) -> dict:
-    from .. import __version__
-
     return {"vfjax": __version__, "options": repr(options)}
 
 
