@@ -3,9 +3,9 @@ others, also where the import sits inside a function (read from the source, not 
 Python happened to import); one version for the package, its build and its command line."""
 
 import ast
+import graphlib
 import importlib.metadata
 import pathlib
-import textwrap
 
 import pytest
 
@@ -60,7 +60,8 @@ def import_graph(folder: pathlib.Path) -> dict[str, set[str]]:
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom):
                 if node.level:
-                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    parts = package.split(".")
+                    base = parts[: len(parts) - node.level + 1]
                     origin = ".".join(base + ([node.module] if node.module else []))
                 else:
                     origin = node.module
@@ -72,65 +73,62 @@ def import_graph(folder: pathlib.Path) -> dict[str, set[str]]:
     return graph
 
 
-def import_loops(graph: dict[str, set[str]]) -> list[list[str]]:
-    """The groups of modules that import each other (strongly connected components of more
-    than one module), each sorted."""
-    order, low, stack, on_stack, loops = {}, {}, [], set(), []
+def import_loop(graph: dict[str, set[str]]) -> list[str] | None:
+    """One loop of modules that import each other back (sorted), or None where there is
+    none: `graphlib`'s topological sort refuses a graph with a cycle and names it."""
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as err:
+        return sorted(set(err.args[1]))
+    return None
 
-    def visit(v):  # Tarjan's algorithm
-        order[v] = low[v] = len(order)
-        stack.append(v)
-        on_stack.add(v)
-        for w in sorted(graph[v]):
-            if w not in order:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on_stack:
-                low[v] = min(low[v], order[w])
-        if low[v] == order[v]:
-            group = []
-            while True:
-                w = stack.pop()
-                on_stack.discard(w)
-                group.append(w)
-                if w == v:
-                    break
-            if len(group) > 1:
-                loops.append(sorted(group))
 
-    for v in sorted(graph):
-        if v not in order:
-            visit(v)
-    return sorted(loops)
+def _package(folder: pathlib.Path, files: dict[str, str]) -> dict[str, set[str]]:
+    """The import graph of a made-up package ``folder`` with ``files`` (name -> source)."""
+    for name, text in files.items():
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_text(text)
+    return import_graph(folder)
 
 
 def test_no_module_imports_one_that_imports_it_back():
     graph = import_graph(PACKAGE)
     assert {"vfjax", "vfjax._fit._engine", "vfjax._diagnosis._calibration"} <= set(graph)
     assert "vfjax._fit._engine" in graph["vfjax._fit"]  # relative imports are resolved
-    assert import_loops(graph) == []
+    assert import_loop(graph) is None
 
 
 def test_the_check_finds_loops_through_functions_and_the_package(tmp_path):
     """A loop held together by an import inside a function, and one back to the package's
     ``__init__`` (a submodule reading a name the package defines), are both found; an
     import for type checking only is not one."""
-    pkg = tmp_path / "pkg"
-    (pkg / "sub").mkdir(parents=True)
-    files = {
-        "__init__.py": "from .a import f\nfrom .c import g\nVERSION = '1'\n",
-        "a.py": "def f():\n    from .b import h\n    return h()\n",
-        "b.py": "from .a import f\n\ndef h():\n    return 1\n",
-        "c.py": "def g():\n    from . import VERSION\n    return VERSION\n",
+    shared = {
         "d.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .e import x\n",
         "e.py": "from .d import TYPE_CHECKING as x\n",
         "sub/__init__.py": "from ..b import h\n",
+        "b.py": "def h():\n    return 1\n",
     }
-    for name, text in files.items():
-        (pkg / name).write_text(textwrap.dedent(text))
-    graph = import_graph(pkg)
-    assert graph["pkg.sub"] == {"pkg.b"} and graph["pkg.d"] == set()
-    assert import_loops(graph) == [["pkg", "pkg.c"], ["pkg.a", "pkg.b"]]
+    through_a_function = _package(
+        tmp_path / "pkg",
+        {
+            **shared,
+            "__init__.py": "from .a import f\n",
+            "a.py": "def f():\n    from .b import h\n    return h()\n",
+            "b.py": "from .a import f\n\ndef h():\n    return 1\n",
+        },
+    )
+    assert through_a_function["pkg.sub"] == {"pkg.b"} and through_a_function["pkg.d"] == set()
+    assert import_loop(through_a_function) == ["pkg.a", "pkg.b"]
+    back_to_the_package = _package(
+        tmp_path / "other" / "pkg",
+        {
+            **shared,
+            "__init__.py": "from .c import g\nVERSION = '1'\n",
+            "c.py": "def g():\n    from . import VERSION\n    return VERSION\n",
+        },
+    )
+    assert import_loop(back_to_the_package) == ["pkg", "pkg.c"]
+    assert import_loop(_package(tmp_path / "clean" / "pkg", shared)) is None
 
 
 def test_one_version_for_the_package_its_build_and_its_command_line(capsys):
