@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import pathlib
+import re
 
 import equinox as eqx
 import jax
@@ -255,12 +256,12 @@ def test_lm_linearisation_is_the_residuals_jacobian():
 
 
 def _compilations():
-    """A counter of new programs, from JAX's monitoring events: each is lowered to MLIR,
-    then compiled or loaded from the persistent compilation cache."""
+    """The names of new programs, from JAX's monitoring events (each is lowered to MLIR,
+    then compiled or loaded from the persistent compilation cache), as they come."""
     seen = []
     jax.monitoring.register_event_duration_secs_listener(
         lambda event, duration, **kw: (
-            seen.append(event)
+            seen.append(kw.get("fun_name", ""))
             if event == "/jax/core/compile/jaxpr_to_mlir_module_duration"
             else None
         )
@@ -636,8 +637,13 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
         rec.fps,
         name="n1_noisy",
     )
+    seen = _compilations()
     sustained = vfjax.settling(result, noisy)
     assert sustained.settled and sustained.warmup == vfjax.SETTLING_WARMUP
+    # its S and shift polished by the fit's own compiled polish: the one program of its own
+    # is the grid of shifts after the longer warm-up (and the fitted GAW's simulation)
+    programs = {re.sub(r"^jit\((.*)\)$", r"\1", n).removesuffix("_stored") for n in seen}
+    assert programs <= {"_grid_start", "simulate_frames", "stack", "convert_element_type"}, seen
     # S and the shift found afresh on the noisy recording: at most the fit's own error
     unchanged = float(vfjax.nmse(noisy.area, result.fitted_gaw()))
     assert 0.98 * unchanged <= sustained.fit_nmse <= unchanged

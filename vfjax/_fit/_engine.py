@@ -198,7 +198,7 @@ def side_by_side(calls: Sequence[Callable]) -> list:
         return list(pool.map(finished, calls))
 
 
-def _stack_strong(*xs):
+def stack_strong(*xs):
     """The leaves stacked, without JAX's weak type (a leaf built from a Python float is
     weakly typed, one set by `VocalFoldModel.set` is not): a batch's program must not depend
     on how its models were made."""
@@ -221,7 +221,7 @@ def batch_bucket(n_fits: int) -> int:
 POLISH_SLICE = 2
 
 
-def _polish_slices(batch, active, found, points, from_point, polish: Polish | None):
+def polish_slices(batch, active, found, points, from_point, polish: Polish | None):
     """`_polish_batch` of a batch (padded to a multiple of `POLISH_SLICE` fits), one slice of
     `POLISH_SLICE` fits per call, the outputs joined in the batch's order. A call polishes
     its fits to the end in one compiled solve; the host is reached between slices only."""
@@ -465,7 +465,7 @@ def fit_many(
 
     def stacked(fits):
         fits = [fits[i] for i in owner]
-        return fits, jax.tree.map(_stack_strong, *fits, *fits[:1] * pad)
+        return fits, jax.tree.map(stack_strong, *fits, *fits[:1] * pad)
 
     problems, batch = stacked([p for p, _, _ in prepared])
     # the earlier stages of a long recording's fit: its first cycles (see `LONG_CYCLES`)
@@ -549,17 +549,17 @@ def fit_many(
     no_points = jnp.zeros((n_fits + pad, n_y), found[0].dtype)
     from_swarm = jnp.zeros(n_fits + pad, bool)
     if not windows:
-        polished = _polish_slices(batch, active, found, no_points, from_swarm, polish)
+        polished = polish_slices(batch, active, found, no_points, from_swarm, polish)
     else:
         # a long recording's own windows, each polish from the last one's point; the other
         # recordings of the batch are polished once, from the swarm's best, as alone
         long = polished_at[0]  # after the first window, from their last window's point
         points, given = no_points, from_swarm
         for stage, on in zip(windows, polished_at):
-            start = _polish_slices(stage, active & on, found, points, given, polish)
+            start = polish_slices(stage, active & on, found, points, given, polish)
             points = jnp.where(on[:, None], start[2 if polish else 0], points)
             given = long
-        polished = _polish_slices(batch, active, found, points, given, polish)
+        polished = polish_slices(batch, active, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
         y, cost, steps = (np.asarray(a) for a in polished[2:5])

@@ -13,13 +13,14 @@ noise explains.
 import dataclasses
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._programs import program
 from ..descriptors import noise_level
 from ..recording import Recording
-from ._polish import levenberg_marquardt
+from ._engine import DEFAULT_POLISH, polish_slices, stack_strong
 from ._problem import fit_sampling, prepare
 from ._result import FitResult
 
@@ -77,24 +78,11 @@ class Settling:
         )
 
 
-#: Levenberg-Marquardt steps over the time shift and S.
-_STEPS = 10
-
-
 @program
-def _aligned_nmse(problem, shift):
-    # the shift (and S) polished, from ``shift`` (s) at the fit's own S where it is given
-    # (the fit's own, at its warm-up) and from the grid's best shift where it is NaN: half a
-    # frame of misalignment on a GAW with sharp closures costs more error than a settled
-    # model's drift
-    n = len(problem.names)
-    grid, cost = problem.start(jnp.zeros(n))
-    own = grid.at[n].set(shift / problem.period)
-    if problem.fit_s:
-        own = own.at[-1].set(0.0)  # the model is the fit's, so its S is the reference
-    y0 = jnp.where(jnp.isnan(shift), grid, own)
-    basis = jnp.eye(y0.size)[n:]
-    return jnp.minimum(levenberg_marquardt(problem.residual, y0, basis, _STEPS)[1], cost)
+def _grid_start(problem):
+    """The polish point of the problem's model (every parameter at its reference) with the
+    best time shift of a grid half a frame apart and the projected S, and its NMSE."""
+    return problem.start(jnp.zeros(len(problem.names)))
 
 
 def settling(result: FitResult, recording: Recording, warmup_s: float | None = None) -> Settling:
@@ -122,11 +110,29 @@ def settling(result: FitResult, recording: Recording, warmup_s: float | None = N
         raise ValueError(f"warmup_s must be longer than the fit's {own:g} s, got {warmup_s}")
     # S re-projected for a GAW in pixels; otherwise a held parameter (a fit needs one name)
     params, held = (("S",), ()) if recording.unit == "px" else (("K",), ("K",))
-    errors = []
-    for w, shift in ((own, result.time_shift), (longer, math.nan)):
+    problems = []
+    for w in (own, longer):
         sampling, period = fit_sampling(recording, w, result.sampling.substeps)
-        problem, _, _ = prepare(result.model, recording, params, sampling, period, None, held)
-        errors.append(float(_aligned_nmse(problem, jnp.asarray(shift))))
+        problems.append(prepare(result.model, recording, params, sampling, period, None, held)[0])
+    # after the fit's warm-up from its own shift at its own S (the problem's reference);
+    # after the longer one from the grid's best shift (the phase of the cycle at the first
+    # frame moves): half a frame of misalignment on a GAW with sharp closures costs more
+    # error than a settled model's drift
+    first = np.zeros(problems[0].point_size)
+    first[len(problems[0].names)] = result.time_shift / float(problems[0].period)
+    grid = _grid_start(problems[1])
+    # S and the shift polished by the fits' own compiled polish (the problems have the
+    # structure and sizes of a fit of ``result``'s model, so that program is reused): one
+    # slice of two, the first from its point, the second from the grid's
+    polished = polish_slices(
+        jax.tree.map(stack_strong, *problems),
+        jnp.ones(2, bool),
+        (jnp.stack([grid[0], grid[0]]), jnp.stack([grid[1], grid[1]])),
+        jnp.stack([jnp.asarray(first), grid[0]]),
+        jnp.asarray([True, False]),
+        DEFAULT_POLISH,
+    )
+    errors = [float(c) for c in np.asarray(polished[3])]
     noise = noise_level(recording.area, result.fitted_gaw(recording))
     measured = recording.n_frames * noise**2 / float(np.sum(recording.area**2))
     floor = min(measured, errors[0]) if noise > 0 else errors[0]
