@@ -643,7 +643,7 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     # its S and shift polished by the fit's own compiled polish: the one program of its own
     # is the grid of shifts after the longer warm-up (and the fitted GAW's simulation)
     programs = {re.sub(r"^jit\((.*)\)$", r"\1", n).removesuffix("_stored") for n in seen}
-    assert programs <= {"_grid_start", "simulate_frames", "stack", "convert_element_type"}, seen
+    assert programs <= {"start_point", "simulate_frames", "stack", "convert_element_type"}, seen
     # S and the shift found afresh on the noisy recording: at most the fit's own error
     unchanged = float(vfjax.nmse(noisy.area, result.fitted_gaw()))
     assert 0.98 * unchanged <= sustained.fit_nmse <= unchanged

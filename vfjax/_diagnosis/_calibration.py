@@ -26,7 +26,7 @@ from scipy import stats
 from .._fit import FitResult, search_range
 from .._fit._engine import placed, side_by_side
 from .._fit._polish import levenberg_marquardt
-from .._fit._problem import prepare
+from .._fit._problem import prepare, start_point
 from .._programs import program
 from .._sampling import length_bucket
 from ..compare import noise_level
@@ -364,11 +364,6 @@ class _Jobs:
 
 
 @program
-def _start(problem, z):
-    return problem.start(z)
-
-
-@program
 def _refit_control(problem, y0, free, basis, steps: int):
     """The control's refit on the problem's own recording: (point, NMSE)."""
     return levenberg_marquardt(dataclasses.replace(problem, free=free).residual, y0, basis, steps)
@@ -536,7 +531,7 @@ def _point_of(problem, fit: FitResult) -> np.ndarray:
     if fit.sampling.warmup == float(problem.grid.t_start):
         return _fit_point(problem, fit)
     z = _coordinates(problem, fit.params, 0.0)
-    return np.asarray(_start(problem, jnp.asarray(z))[0])
+    return np.asarray(start_point(problem, jnp.asarray(z))[0])
 
 
 def refit_groups(

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._programs import program
 from .._sampling import Sampling, length_bucket
 from ..descriptors import fundamental_frequency
 from ..integrator import (
@@ -267,6 +268,14 @@ class Problem(eqx.Module):
         """The fitted model and time shift (s) at the point ``y`` (one fit, concrete)."""
         z = y[: len(self.names) + 1]
         return self.model_at(z, y[-1] if self.fit_s else None), float(self.shift(z))
+
+
+@program
+def start_point(problem: Problem, z):
+    """`Problem.start` of the search point ``z`` as one compiled program (stored across
+    processes): its polish point, with the best time shift of the grid and the projected S,
+    and its NMSE."""
+    return problem.start(z)
 
 
 def program_names(model: VocalFoldModel, params) -> tuple[str, ...]:

@@ -17,11 +17,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._programs import program
 from ..descriptors import noise_level
 from ..recording import Recording
 from ._engine import DEFAULT_POLISH, polish_slices, stack_strong
-from ._problem import fit_sampling, prepare
+from ._problem import fit_sampling, prepare, start_point
 from ._result import FitResult
 
 #: The warm-up (s) after which `settling` simulates a fitted model by default: about 25
@@ -78,13 +77,6 @@ class Settling:
         )
 
 
-@program
-def _grid_start(problem):
-    """The polish point of the problem's model (every parameter at its reference) with the
-    best time shift of a grid half a frame apart and the projected S, and its NMSE."""
-    return problem.start(jnp.zeros(len(problem.names)))
-
-
 def settling(result: FitResult, recording: Recording, warmup_s: float | None = None) -> Settling:
     """Simulate ``result``'s fitted model after a longer warm-up and compare its error.
 
@@ -120,7 +112,7 @@ def settling(result: FitResult, recording: Recording, warmup_s: float | None = N
     # error than a settled model's drift
     first = np.zeros(problems[0].point_size)
     first[len(problems[0].names)] = result.time_shift / float(problems[0].period)
-    grid = _grid_start(problems[1])
+    grid = start_point(problems[1], np.zeros(len(problems[1].names)))
     # S and the shift polished by the fits' own compiled polish (the problems have the
     # structure and sizes of a fit of ``result``'s model, so that program is reused): one
     # slice of two, the first from its point, the second from the grid's
