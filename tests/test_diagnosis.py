@@ -252,6 +252,15 @@ def test_shared_gap_case(shared_dir):
     alone = Investigation(rec.name, [Round(result, d, None, None)]).outcome(rec)
     assert alone.status == "unexplained" and alone.evidence == {}
     assert any(f.startswith("closed phase") for f in alone.failures), alone.failures
+    # a diagnosis of a failed fit says so first: its falls are measured from that fit
+    assert not result.failed and not d.verdict.startswith("The diagnosed fit")
+    no_better = dataclasses.replace(result, status="worse_than_mean", nmse_of_mean=0.02)
+    text = verdict_text(dataclasses.replace(d, result=no_better))
+    assert text.startswith(
+        f"The diagnosed fit failed: NMSE {result.nmse:.4g} is no better than the recording's "
+        "mean as a constant (0.02)"
+    )
+    assert "; the effects are weighed against it. " in text and "GlottalGap is missing" in text
     # a candidate whose refit ends above the refit without any effect (after a longer
     # warm-up) is named as not assessed, not read as evidence against it
     assert "Not assessed" not in d.verdict

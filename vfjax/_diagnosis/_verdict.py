@@ -231,6 +231,12 @@ def verdict_text(d: Diagnosis) -> str:
     before = d.nmse_before
     floor = f"noise floor about {d.noise_nmse:.3%}"
     lines = []
+    if d.result.failed:
+        # every fall and p-value below is measured from this fit: a reader must not take "no
+        # effect is needed" for a model that describes the recording
+        lines.append(
+            f"The diagnosed fit {d.result.status_message()}; the effects are weighed against it"
+        )
     if d.control is not None and d.control.nmse < 0.8 * d.result.nmse:
         lines.append(
             f"The fit was not the best the model can do: a refit without any effect "
