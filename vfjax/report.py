@@ -310,9 +310,10 @@ def _method_lines(d, r) -> list[str]:
             f"effect refitted: NMSE {cal.control_nmse:.3%}). Its error fall is calibrated on "
             f"{cal.replicates} null recordings simulated from the fitted model with the "
             f"recording's noise ({v.noise_sd:.3g} per frame) and cycle-to-cycle variability "
-            f"(timing offsets of {v.timing_sd * 1e3:.3g} ms and amplitude factors of "
-            f"{v.amplitude_sd:.2%} standard deviation, matching its jitter {v.jitter:.2%} "
-            f"and shimmer {v.shimmer:.2%}), refitted alike. An effect is *needed* when its "
+            f"(per cycle, standard deviations of {v.timing_sd * 1e3:.3g} ms in the timing "
+            f"offsets, {v.period_sd * 1e3:.3g} ms in the periods and {v.amplitude_sd:.2%} in "
+            f"the amplitude factors; its local jitter {v.jitter:.2%} and shimmer "
+            f"{v.shimmer:.2%}), refitted alike. An effect is *needed* when its "
             f"family-wise calibrated p-value is at most {d.criteria.alpha:g} and the "
             f"{cal.interval_level:.0%} interval of its size excludes its off-value."
         )

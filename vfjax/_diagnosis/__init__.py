@@ -33,9 +33,10 @@ off, or a user's own term), two questions:
 
    The test (`Calibration`, a parametric bootstrap): from the best fit without any effect,
    null recordings are simulated, each the fitted model with the recording's white noise and
-   its cycle-to-cycle variability drawn afresh (`TimingJitter` offsets and `AmplitudeJitter`
-   factors whose deviations reproduce the recording's local jitter and shimmer), clipped and
-   rounded like the recording. On the recording and on every null recording alike, one
+   its cycle-to-cycle variability drawn afresh (`TimingJitter` offsets that scatter and that
+   wander, a random walk of the periods, and `AmplitudeJitter` factors, in the proportions
+   that reproduce the recording's per-cycle misfits: `Variability`), clipped and rounded
+   like the recording. On the recording and on every null recording alike, one
    compiled program refits the control (a few Levenberg-Marquardt steps from the fit) and
    each candidate from the control's optimum with its parameters at a fixed lattice of
    starts, and from its search's fit (a modulation, whose error has many basins, not from

@@ -2,26 +2,27 @@
 diagnosis compares with theirs (a parametric bootstrap of the test).
 
 A null recording is what the fitted model, with no candidate effect, would have produced in
-the fit's own sampling: its GAW with the recording's cycle-to-cycle variability (period and
-amplitude jitter drawn afresh, `TimingJitter` and `AmplitudeJitter`, matched to the
-recording's own jitter and shimmer) and white noise at the recording's level, clipped at
-zero and rounded like the recording. On every recording, the observed one and the null
-ones, the same refit statistic is computed by the same compiled programs (`_statistics`,
-one per group of candidates that share a warm-up, `refit_groups`): the control refit of the
-fitted parameters, then each candidate's refit from the control's optimum and from the same
-fixed starts (`refit_jobs`; `Calibration.steps` Levenberg-Marquardt steps each). A
-candidate's refit never ends worse than its control: the control's optimum, with the effect
-off, is one of its points.
+the fit's own sampling: its GAW with the recording's cycle-to-cycle variability drawn afresh
+(timing offsets, a random walk of the timing and amplitude factors, `TimingJitter` and
+`AmplitudeJitter`, matched to the recording's per-cycle misfits: `Variability`) and white
+noise at the recording's level, clipped at zero and rounded like the recording. On every
+recording, the observed one and the null ones, the same refit statistic is computed by the
+same compiled programs (`_statistics`, one per group of candidates that share a warm-up,
+`refit_groups`): the control refit of the fitted parameters, then each candidate's refit
+from the control's optimum and from the same fixed starts (`refit_jobs`;
+`Calibration.steps` Levenberg-Marquardt steps each). A candidate's refit never ends worse
+than its control: the control's optimum, with the effect off, is one of its points.
 """
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from .._fit import FitResult, search_range
 from .._fit._engine import placed, side_by_side
@@ -34,7 +35,12 @@ from ..descriptors import describe, fundamental_frequency
 from ..recording import Recording
 from ..terms.variability import AmplitudeJitter, TimingJitter
 from ._candidates import Candidate, extended
-from ._cycles import CycleVariability, cycle_deviation, variability_test
+from ._cycles import (
+    CycleVariability,
+    cycle_deviation,
+    variability_measures,
+    variability_test,
+)
 
 
 class Calibration(eqx.Module):
@@ -124,23 +130,26 @@ def check_reachable(alpha: float, calibration: Calibration) -> None:
 class Variability:
     """The cycle-to-cycle variability of a recording, and the model's that matches it.
 
-    The `TimingJitter` offsets and `AmplitudeJitter` factors whose null recordings show the
-    recording's local jitter and shimmer (`vfjax.descriptors.describe`, measured alike on
-    the recording and on simulated ones, noise included). Local measures (consecutive
-    cycles) are blind to a slow drift or modulation, which is a candidate effect, not
-    variability. Jitter measured on a few cycles is noisy, and a mechanism the model lacks
-    varies too: their size is set so that null recordings show the recording's misfit that
-    changes from cycle to cycle (`cycle_deviation`; the misfit every cycle shares is left to
-    the candidates), their proportions are the jitter and shimmer's (`variability_size`).
+    Null recordings carry `TimingJitter` offsets, a random walk of them (periods that vary
+    from cycle to cycle, so that the timing wanders, as a closure hold of varying length
+    makes it) and `AmplitudeJitter` factors, one per cycle. Their proportions are those
+    that show the recording's per-cycle timing and amplitude misfits (`variability_kind`),
+    measured alike on the recording and on simulated ones, noise included. A mechanism the
+    model lacks varies too: their size is set so that null recordings show the recording's
+    misfit that changes from cycle to cycle (`cycle_deviation`; the misfit every cycle
+    shares is left to the candidates; `variability_size`).
 
     Attributes:
-        jitter, shimmer: the recording's local jitter and shimmer (fractions).
-        timing_sd: standard deviation of the timing offsets (s).
+        jitter, shimmer: the recording's local jitter and shimmer (fractions; reported,
+            not simulated: at a few frames a cycle they mostly show the noise).
+        timing_sd: standard deviation of the timing offsets about the model's clock (s).
         amplitude_sd: standard deviation of the amplitude factors.
         simulated_control_nmse: the control refit's mean NMSE on the null recordings (on
             the recording: `Calibrated.control_nmse`).
         noise_sd: standard deviation of the white measurement noise (the GAW's unit).
         period: the fitted model's cycle length (s), the slot of the jitter factors.
+        period_sd: standard deviation of each cycle's period, the step of the timing's
+            random walk (s).
     """
 
     jitter: float
@@ -150,6 +159,7 @@ class Variability:
     simulated_control_nmse: float
     noise_sd: float
     period: float
+    period_sd: float = 0.0
 
 
 class _Simulator(eqx.Module):
@@ -181,6 +191,18 @@ def _jittered_gaws(simulator, model, shift, offsets, factors):
 _DRAW_BATCH = 16
 
 
+class Spreads(NamedTuple):
+    """The cycle-to-cycle variability of null recordings (`_NullSource.jitter`)."""
+
+    timing: float = 0.0  # deviation of the timing offsets about the model's clock (s)
+    amplitude: float = 0.0  # deviation of the amplitude factors
+    period: float = 0.0  # deviation of each cycle's period, a random walk of the timing (s)
+
+
+#: No variability: white noise only.
+NO_SPREADS = Spreads()
+
+
 class _NullSource:
     """Draws recordings from a model: its GAW at the problem's sampling and time shift, with
     cycle-to-cycle variability and white noise at the level of the recording's misfit to
@@ -197,6 +219,10 @@ class _NullSource:
         horizon = max(float(problem.grid.t_start) + float(problem.grid.max_time_shift), start)
         horizon += recording.n_frames / recording.fps
         self.n_slots = length_bucket(math.ceil(horizon / period) + 2)
+        # the slot of the first frame, where a random walk of the timing starts (its value
+        # there is a time shift, which the refits take up)
+        first = float(problem.grid.t_start) + float(shift)
+        self.first_slot = min(max(int(first / period), 0), self.n_slots - 1)
         self.model = model.with_term(TimingJitter(np.zeros(self.n_slots), period)).with_term(
             AmplitudeJitter(np.ones(self.n_slots), period)
         )
@@ -209,21 +235,25 @@ class _NullSource:
         self.noise_sd = noise_level(recording.area, self.clean[: recording.n_frames])
         self.rng = np.random.default_rng(seed)
 
-    def draw(
-        self, n: int, timing_sd: float, amplitude_sd: float, model=None, shift=None, problem=None
-    ) -> np.ndarray:
-        """``n`` recordings' areas (n, frames bucket), zero beyond the recording, with timing
-        offsets of deviation ``timing_sd`` (s) and amplitude factors of ``amplitude_sd``;
-        of ``model`` (with the source's jitter terms last) at ``shift`` (s) in the sampling
-        of ``problem`` (a `Problem` of the same recording) if given."""
-        return self.draw_with(*self.jitter(n, timing_sd, amplitude_sd), model, shift, problem)
+    def draw(self, n: int, spreads=NO_SPREADS, model=None, shift=None, problem=None) -> np.ndarray:
+        """``n`` recordings' areas (n, frames bucket), zero beyond the recording, with the
+        cycle-to-cycle variability ``spreads`` (`Spreads`); of ``model`` (with the source's
+        jitter terms last) at ``shift`` (s) in the sampling of ``problem`` (a `Problem` of
+        the same recording) if given."""
+        return self.draw_with(*self.jitter(n, *spreads), model, shift, problem)
 
-    def jitter(self, n: int, timing_sd: float, amplitude_sd: float):
-        """``n`` rows of timing offsets (s) and amplitude factors, one per slot, of
-        deviations ``timing_sd`` and ``amplitude_sd``."""
+    def jitter(self, n: int, timing_sd: float, amplitude_sd: float, period_sd: float = 0.0):
+        """``n`` rows of timing offsets (s) and amplitude factors, one per slot: offsets of
+        deviation ``timing_sd`` about the model's clock plus a random walk of steps of
+        deviation ``period_sd`` (each cycle's period off by its step) from the slot of the
+        recording's first frame on, and factors of deviation ``amplitude_sd``."""
         shape = (n, self.n_slots)
         offsets = timing_sd * self.rng.standard_normal(shape)
         factors = np.clip(1.0 + amplitude_sd * self.rng.standard_normal(shape), 0.05, None)
+        if period_sd > 0:
+            steps = period_sd * self.rng.standard_normal(shape)
+            steps[:, : self.first_slot + 1] = 0.0
+            offsets = offsets + np.cumsum(steps, axis=1)
         return offsets, factors
 
     def draw_with(
@@ -272,44 +302,46 @@ def _mean_measure(source, areas: np.ndarray, measure, width: int) -> np.ndarray:
     return np.mean(found, axis=0) if found else np.full(width, math.nan)
 
 
-def _jitter_shimmer(source, areas: np.ndarray) -> tuple[float, float]:
-    """Mean local jitter and shimmer of simulated recordings (rows)."""
-
-    def measure(a):
-        d = describe(a, source.recording.fps)
-        return float(d.jitter), float(d.shimmer)
-
-    return tuple(float(x) for x in _mean_measure(source, areas, measure, 2))
-
-
-#: Deviations of the timing offsets (s) and amplitude factors tried first.
-_TRIAL_SD = (5e-5, 0.02)
-
-
-def variability_kind(source: "_NullSource", n: int = 8) -> tuple[float, float, float, float]:
-    """(jitter, shimmer, timing_sd, amplitude_sd): the recording's local jitter and
-    shimmer and the deviations of the timing offsets (s) and amplitude factors that
-    reproduce them on ``n`` simulated recordings
-    (the excess of the squared measure over what noise alone shows taken as proportional
-    to the factors' variance, solved twice); zero where the noise alone shows as much."""
+def _measures(source, areas: np.ndarray) -> np.ndarray:
+    """Mean `variability_measures` of simulated recordings (rows) about the source's clean
+    GAW."""
     rec = source.recording
-    target = describe(rec.area, rec.fps)
-    want = (float(target.jitter), float(target.shimmer))
-    base = _jitter_shimmer(source, source.draw(n, 0.0, 0.0))
-    sd = list(_TRIAL_SD)
-    if not all(np.isfinite(want + base)):
-        return *want, *sd
-    for _ in range(2):
-        got = _jitter_shimmer(source, source.draw(n, *sd))
-        solved = []
-        for w, b0, g, trial in zip(want, base, got, sd):
-            slope = (g**2 - b0**2) / trial**2 if trial > 0 else 0.0
-            excess = w**2 - b0**2
-            solved.append(min(math.sqrt(excess / slope), 0.3) if slope > 0 and excess > 0 else 0)
-        if not any(solved):
-            return *want, 0.0, 0.0
-        sd = solved
-    return *want, *sd
+    clean = source.clean[: rec.n_frames]
+    return _mean_measure(source, areas, lambda a: variability_measures(a, clean, rec.fps), 4)
+
+
+#: Spreads tried first, one at a time, to learn how each shows in the measures.
+_TRIAL = Spreads(timing=5e-5, amplitude=0.02, period=3e-5)
+#: The largest spreads the null recordings are given.
+_CEILING = Spreads(timing=2e-3, amplitude=0.3, period=1e-3)
+
+
+def variability_kind(source: "_NullSource", fitted, n: int = 16) -> Spreads:
+    """The kind of the recording's cycle-to-cycle variability: the spreads (`Spreads`) whose
+    null recordings show its `variability_measures` about ``fitted`` (its fitted GAW): the
+    timing offsets' scatter about a line and from cycle to cycle, and the amplitude
+    factors'. Each measure's excess over what noise alone shows (``n`` simulated recordings)
+    is taken as linear in the three variances, whose slopes come from ``n`` recordings with
+    each spread alone at its trial value (`_TRIAL`); the variances are the non-negative
+    least-squares solution, each measure weighed by its noise-only value. A period that
+    varies from cycle to cycle (a closure hold of varying length, a varying stiffness)
+    makes the timing wander, which offsets that scatter about the model's clock do not;
+    local jitter and shimmer, measured at a few frames a cycle, mostly show the noise.
+    Zero spreads where noise alone shows as much."""
+    rec = source.recording
+    want = variability_measures(rec.area, fitted, rec.fps)
+    base = _measures(source, source.draw(n))
+    if not (np.all(np.isfinite(want)) and np.all(np.isfinite(base)) and np.all(base > 0)):
+        return _TRIAL
+    columns = []
+    for k, trial in enumerate(_TRIAL):
+        alone = Spreads(*(trial if i == k else 0.0 for i in range(len(_TRIAL))))
+        columns.append((_measures(source, source.draw(n, alone)) - base) / trial**2)
+    slopes = np.stack(columns, axis=1)
+    if not np.all(np.isfinite(slopes)):
+        return _TRIAL
+    variances, _ = optimize.nnls(slopes / base[:, None], (want - base) / base)
+    return Spreads(*np.minimum(np.sqrt(variances), _CEILING))
 
 
 def _deviation(source, areas) -> float:
@@ -323,25 +355,26 @@ def _deviation(source, areas) -> float:
     return float(_mean_measure(source, areas, measure, 1)[0])
 
 
-def variability_size(source: "_NullSource", fitted, kind, n: int = 8) -> tuple[float, float]:
-    """The deviations ``kind`` (timing s, amplitude) scaled together so that null
-    recordings show the recording's cycle-to-cycle misfit (`cycle_deviation` about
-    ``fitted``, its fitted GAW; about the clean GAW for the null recordings), the excess
-    over what noise alone leaves taken as proportional to the variance, solved twice.
-    Where ``kind`` is zero, the trial deviations' proportions (`_TRIAL_SD`)."""
+def variability_size(source: "_NullSource", fitted, kind: Spreads, n: int = 8) -> Spreads:
+    """The spreads ``kind`` scaled together so that null recordings show the recording's
+    cycle-to-cycle misfit (`cycle_deviation` about ``fitted``, its fitted GAW; about the
+    clean GAW for the null recordings), the excess over what noise alone leaves taken as
+    proportional to the variance, solved twice: a mechanism the model lacks that varies
+    from cycle to cycle shows there too. Where ``kind`` is zero, the trial spreads'
+    proportions (`_TRIAL`)."""
     rec = source.recording
     want = cycle_deviation(rec.area, fitted, rec.fps)
-    base = _deviation(source, source.draw(n, 0.0, 0.0))
-    sd = np.asarray(kind if any(kind) else _TRIAL_SD, float)
+    base = _deviation(source, source.draw(n))
+    sd = np.asarray(kind if any(kind) else _TRIAL, float)
     if not (np.isfinite(want) and np.isfinite(base)) or want <= base:
-        return 0.0, 0.0
+        return NO_SPREADS
     for _ in range(2):
-        got = _deviation(source, source.draw(n, *sd))
+        got = _deviation(source, source.draw(n, Spreads(*sd)))
         if not np.isfinite(got) or got <= base:
             break
         sd = sd * math.sqrt((want - base) / (got - base))
-        sd = np.minimum(sd, (2e-3, 0.3))
-    return float(sd[0]), float(sd[1])
+        sd = np.minimum(sd, _CEILING)
+    return Spreads(*(float(x) for x in sd))
 
 
 # ---------------------------------------------------------------------------- the statistic
@@ -997,15 +1030,14 @@ def calibrate(
     dofs = _dofs(cands)
     n_cands = len(cands)
     if calibration.variability:
-        jitter, shimmer, sd_t, sd_a = variability_kind(source)
-        sd_t, sd_a = variability_size(source, fitted, (sd_t, sd_a))
+        spreads = variability_size(source, fitted, variability_kind(source, fitted))
     else:
-        jitter = shimmer = sd_t = sd_a = 0.0
+        spreads = NO_SPREADS
 
     def statistics(rows):
         return run_statistics(groups, rows, steps, n_cands)
 
-    rows = [observed, source.draw(size - 1, sd_t, sd_a)]
+    rows = [observed, source.draw(size - 1, spreads)]
     cc, cb, yb = statistics(np.concatenate(rows))
     main = groups[0].owner[0]  # a candidate of the shortest warm-up's group
     q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
@@ -1028,7 +1060,7 @@ def calibrate(
     kept = []  # each null recording's areas, controls and refits, for a search
     while len(nulls_q) < calibration.replicates:
         if len(c) == 0:
-            drawn = source.draw(size, sd_t, sd_a)
+            drawn = source.draw(size, spreads)
             c, b, _ = statistics(drawn)
         q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
         q = np.where(np.isfinite(c), q, 0.0)  # a failed null counts against
@@ -1074,14 +1106,16 @@ def calibrate(
     group_of = {k: g for g in groups for k in g.owner}
     values = [_values(group_of[k], yb[k][0], c) for k, c in enumerate(cands)]
     intervals = [None] * n_cands
+    local = describe(recording.area, recording.fps)
     variability = Variability(
-        jitter,
-        shimmer,
-        sd_t,
-        sd_a,
+        float(local.jitter),
+        float(local.shimmer),
+        spreads.timing,
+        spreads.amplitude,
         float(np.nanmean(controls)),
         noise,
         period,
+        spreads.period,
     )
     tested = Calibrated(
         candidates=tuple(c.name for c in cands),
@@ -1115,7 +1149,7 @@ def calibrate(
                 # null recordings were searched alike: its basin is the evidence)
                 y = _point_of(jobs.problem, found)
             values[k], intervals[k] = _interval(
-                jobs, source, observed, y, k, cand, (sd_t, sd_a), calibration, n_cands
+                jobs, source, observed, y, k, cand, spreads, calibration, n_cands
             )
     # cycle-to-cycle variability, where no candidate is significant (a missing effect's
     # misfit trades with the per-cycle factors: the extended fit's diagnosis tests it); its
@@ -1138,7 +1172,7 @@ def calibrate(
     )
 
 
-def _interval(jobs, source, observed, y, k, cand, sds, calibration, n_cands) -> tuple:
+def _interval(jobs, source, observed, y, k, cand, spreads, calibration, n_cands) -> tuple:
     """Candidate ``k``'s parameters refined from the point ``y`` of the recording's refit
     (in its group ``jobs``), and their interval: ``({parameter: value}, {parameter: (low,
     high)})`` (see `calibrate`).
@@ -1157,7 +1191,7 @@ def _interval(jobs, source, observed, y, k, cand, sds, calibration, n_cands) -> 
         starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts),
         rank=jnp.where(own[:, 0], -1, jobs.rank),
     )
-    drawn = source.draw(n, *sds, model=model, shift=shift, problem=jobs.problem)
+    drawn = source.draw(n, spreads, model=model, shift=shift, problem=jobs.problem)
     rows = np.concatenate([observed, drawn])
     rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
     values = []

@@ -52,6 +52,47 @@ def cycle_deviation(area, fitted, fps: float) -> float:
     return float(np.sum(dev**2) * per_point / np.sum(a**2))
 
 
+def cycle_projections(area, fitted, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each cycle's misfit read as a timing offset and as an amplitude factor: the residual
+    (``area`` - ``fitted``) over each cycle of the fitted GAW projected on the fitted GAW's
+    slope (a cycle whose area at t is the fitted one at t + delta, a `TimingJitter` offset,
+    shows delta g'(t)) and on the GAW itself (a cycle scaled by 1 + a shows a g(t)). Over a
+    whole cycle the two directions are orthogonal (the integral of g g' over a period is
+    zero). Returns (offsets in s, factors less 1), one per cycle; empty with fewer than
+    three cycles."""
+    a, g = np.asarray(area, float), np.asarray(fitted, float)
+    starts = np.ceil(cycle_starts(g, fps) * fps).astype(int)
+    if starts.size < 4:
+        return np.zeros(0), np.zeros(0)
+    r, slope = a - g, np.gradient(g) * fps
+    offsets, factors = [], []
+    for s0, s1 in zip(starts[:-1], starts[1:]):
+        cycle = slice(s0, s1)
+        ss, gg = np.sum(slope[cycle] ** 2), np.sum(g[cycle] ** 2)
+        offsets.append(np.sum(r[cycle] * slope[cycle]) / ss if ss > 0 else 0.0)
+        factors.append(np.sum(r[cycle] * g[cycle]) / gg if gg > 0 else 0.0)
+    return np.asarray(offsets), np.asarray(factors)
+
+
+def variability_measures(area, fitted, fps: float) -> np.ndarray:
+    """Three measures of a GAW's cycle-to-cycle variability about its fitted GAW, from its
+    `cycle_projections`: the variance of the timing offsets about a line (offsets that
+    scatter about the model's clock), of their steps from cycle to cycle (periods that
+    scatter, so that the offsets wander), and of the amplitude factors. NaN with fewer than
+    three cycles."""
+    offsets, factors = cycle_projections(area, fitted, fps)
+    if offsets.size < 4:
+        return np.full(4, math.nan)
+    return np.array(
+        [
+            _spread(offsets, True)[0],
+            float(np.var(np.diff(offsets))),
+            float(np.var(np.diff(offsets, 2))),
+            float(np.var(factors)),
+        ]
+    )
+
+
 @dataclasses.dataclass(frozen=True)
 class CycleVariability:
     """The calibrated test of cycle-to-cycle variability, and its size.
