@@ -319,15 +319,15 @@ _CEILING = Spreads(timing=2e-3, amplitude=0.3, period=1e-3)
 def variability_kind(source: "_NullSource", fitted, n: int = 16) -> Spreads:
     """The kind of the recording's cycle-to-cycle variability: the spreads (`Spreads`) whose
     null recordings show its `variability_measures` about ``fitted`` (its fitted GAW): the
-    timing offsets' scatter about a line and from cycle to cycle, and the amplitude
-    factors'. Each measure's excess over what noise alone shows (``n`` simulated recordings)
-    is taken as linear in the three variances, whose slopes come from ``n`` recordings with
-    each spread alone at its trial value (`_TRIAL`); the variances are the non-negative
-    least-squares solution, each measure weighed by its noise-only value. A period that
-    varies from cycle to cycle (a closure hold of varying length, a varying stiffness)
-    makes the timing wander, which offsets that scatter about the model's clock do not;
-    local jitter and shimmer, measured at a few frames a cycle, mostly show the noise.
-    Zero spreads where noise alone shows as much."""
+    per-cycle timing offsets' spread about a line and their differences', and the
+    amplitude factors' spread. Each measure's excess over what noise alone shows (``n``
+    simulated recordings) is taken as linear in the three variances, whose slopes come
+    from ``n`` recordings with each spread alone at its trial value (`_TRIAL`); the
+    variances are the non-negative least-squares solution, each measure weighed by its
+    noise-only value. A period that varies from cycle to cycle (a closure hold of varying
+    length, a varying stiffness) makes the timing wander, which offsets that scatter about
+    the model's clock do not; local jitter and shimmer, measured at a few frames a cycle,
+    mostly show the noise. Zero spreads where noise alone shows as much."""
     rec = source.recording
     want = variability_measures(rec.area, fitted, rec.fps)
     base = _measures(source, source.draw(n))

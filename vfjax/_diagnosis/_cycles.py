@@ -75,11 +75,12 @@ def cycle_projections(area, fitted, fps: float) -> tuple[np.ndarray, np.ndarray]
 
 
 def variability_measures(area, fitted, fps: float) -> np.ndarray:
-    """Three measures of a GAW's cycle-to-cycle variability about its fitted GAW, from its
-    `cycle_projections`: the variance of the timing offsets about a line (offsets that
-    scatter about the model's clock), of their steps from cycle to cycle (periods that
-    scatter, so that the offsets wander), and of the amplitude factors. NaN with fewer than
-    three cycles."""
+    """Four measures of a GAW's cycle-to-cycle variability about its fitted GAW, from its
+    `cycle_projections`: the variance of the timing offsets about a line, of their first
+    and of their second differences (offsets that scatter about the model's clock show
+    twice and six times their variance there; periods that scatter, a random walk of the
+    offsets, once and twice theirs and a growing spread about the line), and of the
+    amplitude factors. NaN with fewer than four cycles."""
     offsets, factors = cycle_projections(area, fitted, fps)
     if offsets.size < 4:
         return np.full(4, math.nan)
