@@ -334,8 +334,8 @@ def variability_kind(source: "_NullSource", fitted, n: int = 16) -> Spreads:
     if not (np.all(np.isfinite(want)) and np.all(np.isfinite(base)) and np.all(base > 0)):
         return _TRIAL
     columns = []
-    for k, trial in enumerate(_TRIAL):
-        alone = Spreads(*(trial if i == k else 0.0 for i in range(len(_TRIAL))))
+    for name, trial in zip(Spreads._fields, _TRIAL):
+        alone = NO_SPREADS._replace(**{name: trial})
         columns.append((_measures(source, source.draw(n, alone)) - base) / trial**2)
     slopes = np.stack(columns, axis=1)
     if not np.all(np.isfinite(slopes)):
