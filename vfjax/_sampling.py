@@ -44,8 +44,9 @@ class Sampling(eqx.Module):
     The model starts from rest at contact at time 0 and runs ``warmup`` seconds towards its
     limit cycle before the first frame; a fit then moves the frames by a fitted time shift in
     [0, ``max_time_shift``] (the recording starts at an arbitrary point of the cycle). Only
-    the frame count sizes a compiled fit (`length_bucket`): a new frame rate, warm-up or
-    shift range reuses the program.
+    the frame count sizes a compiled fit (`length_bucket`), and the steps a frame where more
+    than 8 (a camera slower than 2 kHz): a new frame rate, warm-up or shift range reuses the
+    program.
 
     Attributes:
         fps: camera frame rate (Hz).

@@ -973,6 +973,12 @@ def _sampled(
 LOOKBACK = 0.002
 #: Event budget of a fit's simulation, per frame of its window.
 _EVENTS_PER_FRAME = 2
+#: A fit's dense output has rows for at least this many RK4 steps a frame (more round up to
+#: a power of two), so that every camera of 2 kHz or faster (`default_substeps` 8 to 4)
+#: shares one program per length bucket. Rows beyond those a simulation reaches cost no
+#: iterations (the loop stops when done): the compiled fits of 4 kHz recordings run as fast
+#: with rows for 8 steps a frame as with rows for 4 (`benchmarks/engine.py`, part c).
+_ROW_SUBSTEPS = 8
 
 
 class SampledGrid(eqx.Module):
@@ -1028,11 +1034,14 @@ def sampled_grid(sampling: Sampling) -> SampledGrid:
 def window_size(sampling: Sampling) -> tuple[int, int]:
     """The static sizes of a compiled fit's simulation: (frames, rows). Frames: the
     `length_bucket` of the frame count; rows: the dense output's length, enough for the
-    frames, the time-shift range and the lookback (bucketed alike) at ``substeps`` steps and
-    `_EVENTS_PER_FRAME` events per frame."""
+    frames, the time-shift range and the lookback (bucketed alike) at `_ROW_SUBSTEPS` steps
+    a frame (or ``substeps`` rounded up to a power of two, where more) and
+    `_EVENTS_PER_FRAME` events per frame. The frame rate and the steps a frame are then
+    data for every camera of 2 kHz or faster."""
     extra = sampling.shift_frames + math.ceil(LOOKBACK * sampling.fps) + 2
     frames = length_bucket(sampling.n_frames)
-    rows = (sampling.substeps + _EVENTS_PER_FRAME) * (frames + length_bucket(extra))
+    steps = max(_ROW_SUBSTEPS, 1 << (sampling.substeps - 1).bit_length())
+    rows = (steps + _EVENTS_PER_FRAME) * (frames + length_bucket(extra))
     return frames, _CHUNK * -(-rows // _CHUNK)
 
 
