@@ -294,10 +294,12 @@ class _NullSource:
 
 
 def _mean_measure(source, areas: np.ndarray, measure, width: int) -> np.ndarray:
-    """The mean of ``measure(area)`` (``width`` numbers) over simulated recordings (rows),
-    those whose simulation and measure are finite; NaN where none is."""
+    """The mean of ``measure(area, clean, fps)`` (``width`` numbers) over simulated
+    recordings (rows) about the source's clean GAW, those whose simulation and measure are
+    finite; NaN where none is."""
     rec = source.recording
-    found = [measure(a[: rec.n_frames]) for a in areas if np.all(np.isfinite(a))]
+    clean = source.clean[: rec.n_frames]
+    found = [measure(a[: rec.n_frames], clean, rec.fps) for a in areas if np.all(np.isfinite(a))]
     found = [f for f in found if np.all(np.isfinite(f))]
     return np.mean(found, axis=0) if found else np.full(width, math.nan)
 
@@ -305,9 +307,7 @@ def _mean_measure(source, areas: np.ndarray, measure, width: int) -> np.ndarray:
 def _measures(source, areas: np.ndarray) -> np.ndarray:
     """Mean `variability_measures` of simulated recordings (rows) about the source's clean
     GAW."""
-    rec = source.recording
-    clean = source.clean[: rec.n_frames]
-    return _mean_measure(source, areas, lambda a: variability_measures(a, clean, rec.fps), 4)
+    return _mean_measure(source, areas, variability_measures, 4)
 
 
 #: Spreads tried first, one at a time, to learn how each shows in the measures.
@@ -346,13 +346,7 @@ def variability_kind(source: "_NullSource", fitted, n: int = 16) -> Spreads:
 
 def _deviation(source, areas) -> float:
     """Mean `cycle_deviation` of simulated recordings (rows) about the source's clean GAW."""
-    rec = source.recording
-    clean = source.clean[: rec.n_frames]
-
-    def measure(a):
-        return (cycle_deviation(a, clean, rec.fps),)
-
-    return float(_mean_measure(source, areas, measure, 1)[0])
+    return float(_mean_measure(source, areas, lambda *a: (cycle_deviation(*a),), 1)[0])
 
 
 def variability_size(source: "_NullSource", fitted, kind: Spreads, n: int = 8) -> Spreads:
