@@ -18,6 +18,7 @@ from ._diagnosis import (
     RefitPlan,
     Variability,
     asymmetry_test,
+    bootstrap_interval,
     calibrate,
     cycle_deviation,
     default_candidates,
@@ -51,4 +52,5 @@ __all__ = [
     "score_tests",
     "Variability",
     "calibrate",
+    "bootstrap_interval",
 ]

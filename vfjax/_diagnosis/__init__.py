@@ -83,7 +83,7 @@ effect is needed, `Diagnosis.verdict` says so in words, with where the model fai
 - ``_folds``: `asymmetry_test`, left-right asymmetry tested on each fold's area.
 """
 
-from ._calibration import Calibrated, Calibration, Variability, calibrate
+from ._calibration import Calibrated, Calibration, Variability, bootstrap_interval, calibrate
 from ._candidates import DEFAULT_CANDIDATES, Candidate, default_candidates
 from ._cycles import CycleVariability, cycle_deviation
 from ._diagnose import diagnose, extend
@@ -122,5 +122,6 @@ __all__ = [
     "refit_with",
     "score_tests",
     "Variability",
+    "bootstrap_interval",
     "calibrate",
 ]

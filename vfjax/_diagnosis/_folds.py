@@ -21,8 +21,9 @@ folds each make half of its GAW:
   contains, so a refit that ends higher is a search failure, reported): Q, its NMSE and
   the start of the interval;
 - Q's interval is a parametric bootstrap: recordings simulated from the two folds' fit
-  with the same noise, each refitted from it; the interval is the estimate plus or minus
-  the normal quantile times their spread (as the catalogue's effects get).
+  with the same noise, each refitted from it; the interval is centred on the estimate less
+  the bias the refits show and reaches the normal quantile times their spread either way
+  (`bootstrap_interval`, as the catalogue's effects get).
 
 Asymmetry is needed when p <= alpha and Q's interval is measured (finite, of positive
 width) and excludes Q = 1.
@@ -32,7 +33,6 @@ import dataclasses
 
 import jax
 import numpy as np
-from scipy import stats
 
 from .._fit import FitResult, Swarm, fit_many
 from ..asymmetry import with_fold_areas
@@ -41,7 +41,7 @@ from ..integrator import simulated_fold_areas
 from ..recording import Recording
 from ..terms.base import AbstractFoldPair
 from ..terms.folds import LeftRightAsymmetry
-from ._calibration import DEFAULT_CALIBRATION, Calibration
+from ._calibration import DEFAULT_CALIBRATION, Calibration, bootstrap_interval
 from ._verdict import excludes
 
 #: The search box of Q in the two folds' refits.
@@ -284,13 +284,9 @@ def asymmetry_test(
         calibration.seed + 10_000,
         calibration.batch,
     )
-    qs = np.array([f.params["Q"] for f in boot if np.isfinite(f.nmse)])
     q_hat = float(refit.params["Q"])
-    # a normal interval about the estimate, as the catalogue's effects get
-    interval = (float("nan"),) * 2
-    if qs.size >= 2:
-        half = stats.norm.ppf(0.5 + calibration.interval / 2) * np.std(qs, ddof=1)
-        interval = (q_hat - half, q_hat + half)
+    qs = [f.params["Q"] for f in boot if np.isfinite(f.nmse)]
+    interval = bootstrap_interval(q_hat, qs, calibration.interval)  # as the catalogue's
     return AsymmetryTest(
         symmetric_nmse=symmetric,
         nmse=refit.nmse,
