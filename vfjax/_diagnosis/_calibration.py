@@ -1167,7 +1167,9 @@ def calibrate(
     )
 
 
-def bootstrap_interval(estimate: float, replicates, level: float) -> tuple[float, float]:
+def bootstrap_interval(
+    estimate: float, replicates: np.ndarray, level: float
+) -> tuple[float, float]:
     """A parametric bootstrap's confidence interval of a fitted value, bias-corrected.
 
     The replicates are the value refitted on recordings simulated from the model at the
@@ -1181,8 +1183,8 @@ def bootstrap_interval(estimate: float, replicates, level: float) -> tuple[float
 
     Arguments:
         estimate: the value fitted to the recording (in the parameter's units).
-        replicates: the value refitted on each bootstrap recording (same units); a
-            non-finite one makes the interval NaN (not measured).
+        replicates: the value refitted on each bootstrap recording (same units; any
+            sequence of numbers); a non-finite one makes the interval NaN (not measured).
         level: the confidence level, in (0, 1).
 
     Returns:
