@@ -22,7 +22,7 @@ folds each make half of its GAW:
   the start of the interval;
 - Q's interval is a parametric bootstrap: recordings simulated from the two folds' fit
   with the same noise, each refitted from it; the interval is centred on the estimate less
-  the bias the refits show and reaches the normal quantile times their spread either way
+  the bias the refits show and reaches Student's t quantile times their spread either way
   (`bootstrap_interval`, as the catalogue's effects get).
 
 Asymmetry is needed when p <= alpha and Q's interval is measured (finite, of positive
