@@ -452,13 +452,23 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
         "long": (np.array([3.0, 1.2]), np.array([[2.5, 2.0], [1.1, 0.9]])),
     }
 
-    def fake(problem, y0, starts, frees, bases, pool, data, steps):
+    def fake(problem, y0, starts, frees, bases, pool, restarts, data, steps):
         cc, cj = results[problem]
         yj = np.stack([np.stack([np.full(2, c) for c in row]) for row in cj])
         return cc, np.zeros((2, 2)), cj, yj
 
     monkeypatch.setattr(cal, "_statistics", fake)
-    fields = ("y0", "starts", "frees", "bases", "pool", "pool_free", "pool_owner", "rank")
+    fields = (
+        "y0",
+        "starts",
+        "frees",
+        "bases",
+        "pool",
+        "pool_free",
+        "pool_owner",
+        "rank",
+        "restarts",
+    )
     unused = dict.fromkeys(fields, 0)
     groups = [
         SimpleNamespace(problem="fit", owner=(0, 1, 1), **unused),
@@ -482,7 +492,7 @@ res = vfjax.diagnosis.extend(
     vfjax.fit_recording(rec, progress=False), rec, vfjax.GlottalGap(a_gap=0.01)
 )
 cands = as_candidates(res.model, None)
-groups = C.refit_groups(res, rec, cands, None, C.Calibration().steps)
+groups = C.refit_groups(res, rec, cands, None, C.Calibration())
 own = np.asarray(groups[0].problem.measured)
 data = np.stack([own + np.random.default_rng(i).normal(0, 2, own.shape) for i in range(16)])
 own_sampling = sorted(set(k for k in groups[0].owner if k >= 0))  # the fit's own sampling
