@@ -611,9 +611,9 @@ def refit_groups(
     """The statistic's refits of ``result`` on ``recording``, in groups of one warm-up each
     (`refit_jobs`): the candidates that need no longer warm-up than the fit's are refitted
     in the fit's own sampling, from the fit's point; those that do (a slow modulation's
-    ``min_warmup``), in theirs, from the control refitted there (`settled`, ``2 * steps``
-    steps). Each candidate's statistic compares its refit with the control of its own
-    group. ``calibration``: the refits' steps, pool and control starts.
+    ``min_warmup``), in theirs, from the control refitted there (`settled`, twice
+    ``calibration.steps`` steps). Each candidate's statistic compares its refit with the
+    control of its own group. ``calibration``: the refits' steps, pool and control starts.
 
     Every group refits the same model (extended by every candidate, held off but its own)
     with as many jobs (padded with copies of the control, owner -1), so that one compiled
