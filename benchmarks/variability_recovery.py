@@ -19,8 +19,9 @@ import time
 import numpy as np
 
 import vfjax
-from vfjax._diagnosis._calibration import _fit_point, _NullSource
 from vfjax._diagnosis._cycles import variability_test
+from vfjax._diagnosis._nulls import _NullSource
+from vfjax._diagnosis._statistic import _fit_point
 from vfjax._fit._problem import prepare
 
 FPS, FRAMES, NOISE_PX = 4000.0, 401, 1.0

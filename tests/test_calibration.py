@@ -10,19 +10,11 @@ import pytest
 from scipy.optimize import least_squares
 
 import vfjax
-from vfjax._diagnosis._calibration import (
-    Calibrated,
-    Calibration,
-    Spreads,
-    _fit_point,
-    _NullSource,
-    _searched_nulls,
-    calibrate,
-    f_p_values,
-    family_p_values,
-    variability_kind,
-)
+from vfjax._diagnosis._calibration import Calibrated, _searched_nulls, calibrate
 from vfjax._diagnosis._cycles import cycle_projections, variability_test
+from vfjax._diagnosis._nulls import Spreads, _NullSource, variability_kind
+from vfjax._diagnosis._options import Calibration
+from vfjax._diagnosis._statistic import _fit_point, f_p_values, family_p_values
 from vfjax._fit._polish import levenberg_marquardt
 from vfjax.diagnosis import default_candidates
 
@@ -415,8 +407,8 @@ def test_a_modulations_second_lattice_spreads_its_phase_over_the_whole_cycle(n3)
     reach only half of the cycle; its second lattice (about the starting model) puts three
     phases a third of a cycle apart at each of its four frequencies. A candidate with one
     basin keeps its one start."""
-    from vfjax._diagnosis._calibration import _start_values
     from vfjax._diagnosis._candidates import as_candidates
+    from vfjax._diagnosis._statistic import _start_values
 
     cands = {c.name: c for c in as_candidates(n3, None)}
     modulation = cands["PressureModulation"]
@@ -444,7 +436,7 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
     control is the lower of its group's and the first group's, recording by recording."""
     from types import SimpleNamespace
 
-    from vfjax._diagnosis import _calibration as cal
+    from vfjax._diagnosis import _statistic as cal
 
     # per group: the control's NMSE and each job's NMSE on two recordings
     results = {
@@ -484,7 +476,7 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
 _TWO_DEVICE_STATISTIC = """
 import numpy as np, vfjax
 from vfjax.cli import use_cpu_cores
-from vfjax._diagnosis import _calibration as C
+from vfjax._diagnosis import _statistic as C
 from vfjax._diagnosis._candidates import as_candidates
 assert use_cpu_cores(2) == 2
 rec = vfjax.load_recording({path!r})
@@ -492,12 +484,12 @@ res = vfjax.diagnosis.extend(
     vfjax.fit_recording(rec, progress=False), rec, vfjax.GlottalGap(a_gap=0.01)
 )
 cands = as_candidates(res.model, None)
-groups = C.refit_groups(res, rec, cands, None, C.Calibration())
+groups = C.refit_groups(res, rec, cands, None, vfjax.Calibration())
 own = np.asarray(groups[0].problem.measured)
 data = np.stack([own + np.random.default_rng(i).normal(0, 2, own.shape) for i in range(16)])
 own_sampling = sorted(set(k for k in groups[0].owner if k >= 0))  # the fit's own sampling
 for _ in range(3):
-    control, best, _ = C.run_statistics(groups, data, C.Calibration().steps, len(cands))
+    control, best, _ = C.run_statistics(groups, data, vfjax.Calibration().steps, len(cands))
     assert np.all(np.isfinite(control))
     assert np.all(best[:, own_sampling] <= control[:, own_sampling] + 1e-15)
 print("ok")
@@ -556,7 +548,7 @@ def test_the_statistics_control_reaches_the_paper_models_best_on_wandering_null_
     that the steps from the null recording's truth do not reach: on at least one of these
     twelve, the control then ends 30 % or more above it (null 9: 0.057 % against 0.033 %),
     the fall a candidate would be credited with."""
-    from vfjax._diagnosis import _calibration as C
+    from vfjax._diagnosis import _statistic as C
     from vfjax._diagnosis._candidates import as_candidates
     from vfjax._fit._problem import prepare
 

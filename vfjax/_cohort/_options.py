@@ -2,8 +2,15 @@
 
 import equinox as eqx
 
-from .._diagnosis._calibration import DEFAULT_CALIBRATION, Calibration, check_reachable
-from .._diagnosis._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
+from .._diagnosis._options import (
+    DEFAULT_CALIBRATION,
+    DEFAULT_CRITERIA,
+    DEFAULT_PLAN,
+    Calibration,
+    Criteria,
+    RefitPlan,
+    check_reachable,
+)
 from .._fit import FIRST_FIT_RESTARTS, Swarm
 from .._fit._engine import DEFAULT_SWARM
 

@@ -71,8 +71,12 @@ effect is needed, `Diagnosis.verdict` says so in words, with where the model fai
    spreads found), with chi-square intervals on the cycles' count. The recording varies
    beyond its noise when the p-value is at most alpha and an interval excludes zero.
 
-- ``_options``: `Criteria` and `RefitPlan`;
-- ``_calibration``: `Calibration`, the null recordings and the calibrated statistic;
+- ``_options``: `Criteria`, `RefitPlan` and `Calibration`;
+- ``_nulls``: the null recordings of a fit and their variability (`Variability`);
+- ``_statistic``: the refit statistic computed alike on the recording and its null
+  recordings, and its family-wise p-values;
+- ``_calibration``: `calibrate` (the statistic against null recordings, sequentially, and
+  the needed effects' intervals);
 - ``_cycles``: `CycleVariability`, cycle-to-cycle variability tested and sized;
 - ``_candidates``: `Candidate`, the catalogue's candidates and the model extended by them;
 - ``_score``: the score tests and the GAW's sensitivities;
@@ -83,13 +87,14 @@ effect is needed, `Diagnosis.verdict` says so in words, with where the model fai
 - ``_folds``: `asymmetry_test`, left-right asymmetry tested on each fold's area.
 """
 
-from ._calibration import Calibrated, Calibration, Variability, bootstrap_interval, calibrate
+from ._calibration import Calibrated, bootstrap_interval, calibrate
 from ._candidates import DEFAULT_CANDIDATES, Candidate, default_candidates
 from ._cycles import CycleVariability, cycle_deviation
 from ._diagnose import diagnose, extend
 from ._folds import AsymmetryTest, asymmetry_test, per_fold_nmse
 from ._investigate import EXPLAINED_SHARE, Investigation, Outcome, Round, extend_from, investigate
-from ._options import Criteria, RefitPlan
+from ._nulls import Variability
+from ._options import Calibration, Criteria, RefitPlan
 from ._refits import refit_each, refit_with
 from ._score import EffectScore, score_tests
 from ._verdict import Diagnosis, EffectRefit

@@ -10,9 +10,17 @@ from .._fit import FitResult, Swarm, default_warmup, fit
 from ..compare import compare, noise_level
 from ..recording import Recording
 from ..terms import AbstractTerm
-from ._calibration import DEFAULT_CALIBRATION, Calibration, calibrate, check_reachable
+from ._calibration import calibrate
 from ._candidates import as_candidates
-from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
+from ._options import (
+    DEFAULT_CALIBRATION,
+    DEFAULT_CRITERIA,
+    DEFAULT_PLAN,
+    Calibration,
+    Criteria,
+    RefitPlan,
+    check_reachable,
+)
 from ._refits import NullSearch, anchor_values, confirm, error, refit_each, refit_starts
 from ._score import score_tests
 from ._verdict import Diagnosis, EffectRefit, error_before, explains, verdict_text

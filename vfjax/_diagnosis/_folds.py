@@ -41,7 +41,8 @@ from ..integrator import simulated_fold_areas
 from ..recording import Recording
 from ..terms.base import AbstractFoldPair
 from ..terms.folds import LeftRightAsymmetry
-from ._calibration import DEFAULT_CALIBRATION, Calibration, bootstrap_interval
+from ._calibration import bootstrap_interval
+from ._options import DEFAULT_CALIBRATION, Calibration
 from ._verdict import excludes
 
 #: The search box of Q in the two folds' refits.

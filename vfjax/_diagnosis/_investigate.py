@@ -23,10 +23,16 @@ from .._fit._engine import DEFAULT_SWARM
 from ..compare import NO_CLEAR_FAILURE, compare
 from ..model import VocalFoldModel
 from ..recording import Recording
-from ._calibration import DEFAULT_CALIBRATION, Calibration
 from ._candidates import offered
 from ._diagnose import diagnose
-from ._options import DEFAULT_CRITERIA, DEFAULT_PLAN, Criteria, RefitPlan
+from ._options import (
+    DEFAULT_CALIBRATION,
+    DEFAULT_CRITERIA,
+    DEFAULT_PLAN,
+    Calibration,
+    Criteria,
+    RefitPlan,
+)
 from ._refits import error, refit_each
 from ._verdict import EXPLAINED_SHARE, Diagnosis
 

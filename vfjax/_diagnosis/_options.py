@@ -1,4 +1,7 @@
-"""The options of a diagnosis, as objects: when an effect is needed, and how it is refitted."""
+"""The options of a diagnosis, as objects: when an effect is needed, how it is refitted, and
+how its verdicts are calibrated by simulation."""
+
+import math
 
 import equinox as eqx
 
@@ -92,3 +95,110 @@ class RefitPlan(eqx.Module):
 #: The default criteria and refit plan.
 DEFAULT_CRITERIA = Criteria()
 DEFAULT_PLAN = RefitPlan()
+
+
+class Calibration(eqx.Module):
+    """How a diagnosis calibrates its verdicts by simulation (a parametric bootstrap).
+
+    Attributes:
+        replicates: most null recordings simulated (B). A candidate's p-value is
+            (1 + the null recordings whose statistic is as extreme) / (B + 1); the smallest
+            is 1 / (B + 1).
+        batch: null recordings per compiled batch. Between batches the diagnosis stops as
+            soon as every candidate's verdict is decided (a candidate whose p-value can no
+            longer fall to alpha needs no more), so a recording with nothing to find costs
+            one or two batches.
+        interval: level of the confidence interval of a needed effect's size.
+        interval_replicates: recordings simulated from the model with the effect, refitted
+            for its interval (a parametric bootstrap of the estimate); with the recording
+            itself they fill batches of ``batch`` (15: one batch).
+        steps: Levenberg-Marquardt steps of each candidate's refits in the statistic (a few
+            suffice: they start at the fit's optimum, the null recordings' truth); the
+            control's refit takes twice as many.
+        variability: simulate the recording's cycle-to-cycle variability in the null
+            recordings (else white noise only).
+        seed: seed of the null recordings' noise and variability.
+        pool: for a candidate with many basins (the pressure modulation), how many starts
+            of its pool about the recording's starting model are refitted on each recording
+            (the ones of lowest profiled cost, `refit_jobs`); 0: no pool. Four find a
+            modulation that the first fit imitates with a stretched closure hold, at half
+            as much again of the statistic's refits (benchmarks/README.md).
+        search_nulls: where a candidate's search refit (swarms and polish from the score
+            tests' starts) passes the test while its refit from fixed starts does not, the
+            same search runs on the null recordings, one after another until one falls as
+            far (the search fits what the null recordings' variability makes) or all have
+            (`vfjax.diagnosis.Calibrated.search_p_values`): on at most this many (None: all
+            of them, ``replicates``, which decides it either way; 0: none). A search that
+            these leave undecided is named unconfirmed (`vfjax.Diagnosis.unconfirmed`). A
+            search that fits the recording's cycle-to-cycle variability is ruled out by the
+            first null recording whose search falls as far (the fourth, on a no-effect N1
+            of the injection-recovery benchmark); one that every null recording's falls
+            short of costs this many searches (on a 401-frame N1, the modulation's takes
+            about 10 s a null recording on 2 cores: about 3 minutes for 19, 18 for 111).
+        control_starts: besides its refit from the fit's point, the control of the
+            statistic is refitted on each recording from the best of this many more starts
+            (by their cost with the time shift and S found afresh, `Problem.start`): the
+            fit's point with the control's fitted parameters moved within
+            ``control_spread``, and the fit's point itself (0: no more starts). A null
+            recording is simulated from the fit's point, but its cycle-to-cycle variability
+            can move the paper model's best into another basin, one the control's steps from
+            its truth do not reach and a candidate's refit (one more degree of freedom) does:
+            that null's candidates then fall far, and the recording's own fall, measured
+            from a control at its optimum, is outranked. On a GlottalGap recording of the
+            injection-recovery benchmark (N1, a_gap 0.003 cm², 3 px, seed 0) three of 31
+            null recordings' controls ended at NMSE 0.0022, 0.0039 and 0.0032 where a full
+            fit reaches 0.00090, 0.00032 and 0.00072 and the cubic stiffness's refit 0.00092,
+            0.00037 and 0.00072: the gap was missed (p = 0.0625). From the best of 16 more
+            starts within 2 % the controls reach 0.00091, 0.00032 and 0.00073.
+        control_spread: half-width of the control's extra starts about the fit's point in
+            the search's coordinates: the logarithm of a multiplicative parameter (0.02:
+            within 2 %), an additive parameter in units of its search scale.
+    """
+
+    replicates: int = eqx.field(default=111, converter=int)
+    batch: int = eqx.field(default=16, converter=int)
+    interval: float = eqx.field(default=0.95, converter=float)
+    interval_replicates: int = eqx.field(default=15, converter=int)
+    steps: int = eqx.field(default=10, converter=int)
+    variability: bool = True
+    seed: int = eqx.field(default=0, converter=int)
+    pool: int = eqx.field(default=0, converter=int)
+    search_nulls: int | None = eqx.field(default=19, converter=lambda n: n if n is None else int(n))
+    control_starts: int = eqx.field(default=16, converter=int)
+    control_spread: float = eqx.field(default=0.02, converter=float)
+
+    def __check_init__(self):
+        if self.control_starts < 0 or not self.control_spread >= 0:
+            raise ValueError(
+                "Calibration: control_starts and control_spread must be >= 0, got "
+                f"{self.control_starts}, {self.control_spread}"
+            )
+        if self.pool < 0:
+            raise ValueError(f"Calibration: pool must be >= 0, got {self.pool}")
+        if self.search_nulls is not None and self.search_nulls < 0:
+            raise ValueError(
+                f"Calibration: search_nulls must be >= 0 or None, got {self.search_nulls}"
+            )
+        if self.replicates < 1 or self.batch < 1 or self.interval_replicates < 2:
+            raise ValueError(
+                "Calibration: replicates and batch must be >= 1 and interval_replicates >= 2, "
+                f"got {self.replicates}, {self.batch}, {self.interval_replicates}"
+            )
+        if not 0 < self.interval < 1:
+            raise ValueError(f"Calibration: interval must lie in (0, 1), got {self.interval}")
+
+
+DEFAULT_CALIBRATION = Calibration()
+
+
+def check_reachable(alpha: float, calibration: Calibration) -> None:
+    """Refuse a calibration whose smallest p-value, 1 / (1 + replicates), is above the level
+    ``alpha``: with it no effect could ever be found needed."""
+    smallest = 1.0 / (1 + calibration.replicates)
+    if smallest > alpha:
+        need = math.ceil(1.0 / alpha - 1.0 - 1e-9)
+        raise ValueError(
+            f"Calibration(replicates={calibration.replicates}) cannot reach alpha = {alpha:g}: "
+            f"its smallest p-value is 1/{calibration.replicates + 1}; give at least {need} "
+            "replicates, or a larger alpha"
+        )
