@@ -213,8 +213,13 @@ def test_shared_no_effect_case_flags_nothing(shared_dir):
 
 
 @pytest.mark.xdist_group("diagnosis")
-def test_shared_gap_case(shared_dir):
-    rec, answer, result, d = _shared(shared_dir, "syn_gap", **QUICK_LEVEL)
+def test_shared_gap_case(shared_dir, capsys):
+    rec, answer, result, d = _shared(shared_dir, "syn_gap", **QUICK_LEVEL, progress=True)
+    # progress: a line per candidate on stdout, the calibration's bar on stderr, counting
+    # its null recordings to the most the calibration may draw
+    out, err = capsys.readouterr()
+    assert f"; {d.calibrated.replicates} null recordings" in out and "GlottalGap: NMSE" in out
+    assert "calibrate syn_gap" in err and f"{d.calibrated.replicates}/19 [" in err, err[-500:]
     assert d.ranking[0] == "GlottalGap" and d.best == "GlottalGap", d.verdict
     assert d.scores["GlottalGap"].direction == +1
     refit = d.refits["GlottalGap"]

@@ -11,6 +11,7 @@ recording against null recordings searched alike, and sizes the needed effects
 
 import dataclasses
 import math
+import sys
 
 import jax.numpy as jnp
 import numpy as np
@@ -163,6 +164,7 @@ def calibrate(
     refine=None,
     tested_searches=None,
     search=None,
+    progress: bool | None = None,
 ) -> Calibrated:
     """Calibrate each candidate's refit statistic on null recordings of ``result``.
 
@@ -203,7 +205,10 @@ def calibrate(
     null recordings' areas, returns each one's search refit NMSE; ``per_batch(k)`` null
     recordings at a time); given, and with ``calibration.search_nulls``, a candidate whose
     tested search refit passes where its own refit does not is calibrated against null
-    recordings searched alike (`Calibrated.search_p_values`)."""
+    recordings searched alike (`Calibrated.search_p_values`). ``progress``: show a progress
+    bar of the null recordings on stderr (default: on a terminal), its total the most there
+    can be (``calibration.replicates``), the smallest family-wise p-value so far beside it; a
+    calibration that decides early closes it short of that total."""
     cands = list(cands)
     steps = calibration.steps
     groups = refit_groups(result, recording, cands, estimates, calibration, anchor)
@@ -228,11 +233,16 @@ def calibrate(
     else:
         spreads = NO_SPREADS
 
-    def statistics(rows):
-        return run_statistics(groups, rows, steps, n_cands)
+    bar = _progress_bar(progress, calibration.replicates, recording.name)
+
+    def statistics(rows, nulls):  # ``nulls``: how many of the rows are null recordings
+        out = run_statistics(groups, rows, steps, n_cands)
+        if bar is not None:
+            bar.update(min(nulls, bar.total - bar.n))
+        return out
 
     rows = [observed, source.draw(size - 1, spreads)]
-    cc, cb, yb = statistics(np.concatenate(rows))
+    cc, cb, yb = statistics(np.concatenate(rows), size - 1)
     main = groups[0].owner[0]  # a candidate of the shortest warm-up's group
     q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
     searched = np.array(
@@ -255,7 +265,7 @@ def calibrate(
     while len(nulls_q) < calibration.replicates:
         if len(c) == 0:
             drawn = source.draw(size, spreads)
-            c, b, _ = statistics(drawn)
+            c, b, _ = statistics(drawn, size)
         q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
         q = np.where(np.isfinite(c), q, 0.0)  # a failed null counts against
         take = min(size, calibration.replicates - len(nulls_q))
@@ -266,8 +276,12 @@ def calibrate(
         family = family_p_values(q_obs, np.asarray(nulls_q))[0]
         searches = family_p_values(q_search, np.asarray(nulls_q))[0]
         open_ = np.minimum(family, np.where(has_search, searches, np.inf))
+        if bar is not None:
+            bar.set_postfix(p=f"{float(np.min(family)):.2g}")
         if np.all(open_ * (len(nulls_q) + 1) > level_count):
             break
+    if bar is not None:
+        bar.close()
     nulls_q = np.asarray(nulls_q)
     n = len(nulls_q)
     family, marginal, nulls_max, centred = family_p_values(q_obs, nulls_q)
@@ -364,6 +378,16 @@ def calibrate(
     return dataclasses.replace(
         tested, values=tuple(values), intervals=tuple(intervals), cycles=cycles
     )
+
+
+def _progress_bar(show: bool | None, total: int, name: str):
+    """A progress bar of ``total`` null recordings of the recording ``name`` on stderr
+    where ``show`` (where it is None: on a terminal), else None."""
+    if not (sys.stderr.isatty() if show is None else show):
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=f"calibrate {name}", unit="null", leave=False)
 
 
 def bootstrap_interval(

@@ -34,7 +34,7 @@ def diagnose(
     criteria: Criteria = DEFAULT_CRITERIA,
     plan: RefitPlan | None = DEFAULT_PLAN,
     calibration: Calibration = DEFAULT_CALIBRATION,
-    progress: bool = False,
+    progress: bool | None = None,
 ) -> Diagnosis:
     """Find the effect the fitted model misses (see `vfjax.diagnosis`).
 
@@ -50,7 +50,9 @@ def diagnose(
             only, ranked by their (asymptotic, uncalibrated) p-values.
         calibration: how the refits' statistics are calibrated on null recordings
             (`Calibration`: most null recordings, batch, interval level, ...).
-        progress: print one line per candidate.
+        progress: True: print one line per candidate and show the calibration's progress
+            bar on stderr (null recordings, at most ``calibration.replicates``); None: the
+            bar alone, on a terminal; False: neither.
     """
     if not isinstance(criteria, Criteria):
         raise TypeError(f"criteria must be a vfjax.Criteria, got {type(criteria).__name__}")
@@ -137,6 +139,7 @@ def diagnose(
                 criteria.variance,
                 n_starts=[len(starts) for _, starts in jobs[1:]],
             ),
+            progress=progress,
         )
         if progress:
             print(
