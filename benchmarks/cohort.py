@@ -4,9 +4,10 @@ in one process and on a local Dask cluster of 2 worker processes.
 The recordings: lengths 101-1 001 frames, frame rates 2-8 kHz (at least 30 ms each), the
 paper's four subjects, 1-2 px noise and 0.3 % closure jitter; every other one with a hidden
 effect (a glottal gap of 0.003 cm², a cubic stiffness of eta 1 500 1/cm², a mucosal delay of
-0.2 ms or a pressure modulation of depth 0.1 at 8 Hz: `effects`). Prints, per run: wall time, recordings per
-hour, the largest difference from the serial run's table, and the memory (RSS) of the
-process or each worker, sampled every 2 s, over the first and the second half of the run.
+0.2 ms or a pressure modulation of depth 0.1 at 8 Hz: `effects`). Prints, per run: wall time,
+recordings per hour, the largest difference from the serial run's table, and the memory
+(RSS) of the process or each worker, sampled every 2 s, over the first and the second half
+of the run.
 
     python benchmarks/cohort.py --out bench_cohort                 # fits alone (part a)
     python benchmarks/cohort.py --out bench_cohort --diagnose      # fit + diagnosis (part b)
