@@ -15,6 +15,8 @@ of the run.
         # and the verdicts of 8 recordings diagnosed alone (vfjax.investigate)
     python benchmarks/cohort.py --out bench_cohort --n 96 --length 201 --skip-serial
         # one length bucket: whether a worker's memory grows with the recordings
+    python benchmarks/cohort.py --out bench_cohort --diagnose --skip-serial --warmup 0.5
+        # recordings in sustained phonation (default: from the start-up, 27.7 ms in)
 
 Each run writes its own cohort folder under --out and reuses nothing of an earlier run
 (each starts from an empty folder; JAX's compilation cache stays on, as for the command
@@ -48,9 +50,12 @@ def effects():
     )
 
 
-def make_recordings(folder: pathlib.Path, n: int, lengths=LENGTHS) -> pathlib.Path:
+def make_recordings(
+    folder: pathlib.Path, n: int, lengths=LENGTHS, warmup: float | None = None
+) -> pathlib.Path:
     """The cohort's recordings and manifest (path, subject, sex, effect), of ``lengths``
-    frames in turn."""
+    frames in turn, each from ``warmup`` s after the onset (None: `demo_recording`'s 27.7
+    ms, in the start-up)."""
     import vfjax
     from vfjax.io import write_recording
 
@@ -71,6 +76,7 @@ def make_recordings(folder: pathlib.Path, n: int, lengths=LENGTHS) -> pathlib.Pa
             n_frames=length,
             effect=effect,
             jitter=0.003,
+            warmup=warmup,
         )
         path = folder / f"r{i:02d}.csv"
         write_recording(rec, path)
@@ -194,6 +200,13 @@ def main() -> int:
         help="every recording this many frames (one length bucket: no new program after the "
         "first batch, so a memory that grows would grow with the recordings)",
     )
+    p.add_argument(
+        "--warmup",
+        type=float,
+        default=None,
+        help="simulated time (s) before each recording's first frame (default: 27.7 ms after "
+        "the onset, in the start-up; 0.5: sustained phonation, as benchmarks/diagnosis_power.py)",
+    )
     args = p.parse_args()
 
     from vfjax._runtime import use_compilation_cache, use_cpu_cores
@@ -204,7 +217,7 @@ def main() -> int:
 
     out = pathlib.Path(args.out)
     lengths = LENGTHS if args.length is None else (args.length,)
-    manifest = make_recordings(out / "data", args.n, lengths)
+    manifest = make_recordings(out / "data", args.n, lengths, args.warmup)
     options = vfjax.CohortOptions(diagnose=args.diagnose)
     part = "fit + diagnosis" if args.diagnose else "fits alone"
     tag = "diagnosed" if args.diagnose else "fits"
