@@ -462,6 +462,7 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
         "restarts",
     )
     unused = dict.fromkeys(fields, 0)
+    unused["bases"] = np.ones((1, 1, 2))  # the control's one search direction
     groups = [
         SimpleNamespace(problem="fit", owner=(0, 1, 1), **unused),
         SimpleNamespace(problem="long", owner=(2, 2), **unused),

@@ -65,7 +65,8 @@ def settled(jobs: _Jobs, steps: int) -> _Jobs:
     changes the state at the first frame: syn_gap's fit with its gap, simulated after 0.1 s
     rather than its 20 ms, has 2.4 times its error until refitted), and refits from it
     within a few steps would differ by where they stop."""
-    y, _ = _refit_control(jobs.problem, jobs.y0, jobs.frees[0], jobs.bases[0], 2 * int(steps))
+    basis = _control_basis(jobs.bases)
+    y, _ = _refit_control(jobs.problem, jobs.y0, jobs.frees[0], basis, 2 * int(steps))
     return dataclasses.replace(jobs, y0=y)
 
 
@@ -89,6 +90,9 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
     that refit, the control reaches 0.066 %), and the family-wise test would count that
     fall against every candidate on the recording.
 
+    ``bases`` is ``(the control's search directions, each job's)``: the control moves
+    fewer coordinates than the jobs, whose directions are padded to the widest job's.
+
     ``pool`` is ``(entries, entries' free parameters, entries' candidates, jobs' ranks,
     jobs' candidates, candidates)``: on each recording, every entry's time shift and S are
     found afresh and its cost profiled (one simulation each), and a job with a rank
@@ -100,7 +104,8 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
     # the coordinates the control moves (its fitted parameters, the time shift and S): a
     # refit's point with the others at the fit's (the candidates' off-values) is the
     # control's
-    kept = jnp.sum(bases[0], axis=0) > 0
+    control_basis, job_bases = bases
+    kept = jnp.sum(control_basis, axis=0) > 0
 
     def one(measured):
         p = dataclasses.replace(problem, measured=measured)
@@ -110,9 +115,9 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
             moved, moved_cost = jax.vmap(pc.start)(y0[:n_names] + restarts)
             moved_cost = jnp.where(jnp.isfinite(moved_cost), moved_cost, jnp.inf)
             begin = jnp.stack([y0, moved[jnp.argmin(moved_cost)]])
-        ycs, ccs = jax.vmap(lambda y: levenberg_marquardt(pc.residual, y, bases[0], 2 * steps))(
-            begin
-        )
+        ycs, ccs = jax.vmap(
+            lambda y: levenberg_marquardt(pc.residual, y, control_basis, 2 * steps)
+        )(begin)
         yc, cc = ycs[jnp.argmin(ccs)], jnp.min(ccs)
         if entries.shape[0]:
 
@@ -132,13 +137,13 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
                 y = jnp.where(rank >= 0, chosen[pick], y)
             return levenberg_marquardt(pj.residual, y, basis, steps)
 
-        yj, cj = jax.vmap(job)(starts, frees[1:], bases[1:], ranks, job_owner)
+        yj, cj = jax.vmap(job)(starts, frees[1:], job_bases, ranks, job_owner)
 
         def control_from(cand):
             mine = jnp.where(job_owner == cand, cj, jnp.inf)
             best = jnp.argmin(mine)
             y, cost = levenberg_marquardt(
-                pc.residual, jnp.where(kept, yj[best], y0), bases[0], steps
+                pc.residual, jnp.where(kept, yj[best], y0), control_basis, steps
             )
             return y, jnp.where(jnp.isfinite(mine[best]), cost, jnp.inf)
 
@@ -423,6 +428,13 @@ def _control_restarts(free: np.ndarray, calibration: Calibration) -> np.ndarray:
     return offsets
 
 
+def _control_basis(bases) -> jax.Array:
+    """The control's search directions alone (``bases[0]`` without the zero rows that pad
+    it to the jobs' width): each row costs a Jacobian column at every step."""
+    rows = np.any(np.asarray(bases[0]) != 0, axis=1)
+    return bases[0][rows]
+
+
 def _members(owner, n_cands: int) -> np.ndarray:
     """The candidates among the jobs' owners, padded with -1 to ``n_cands`` (one shape, and
     so one compiled program, for every group)."""
@@ -447,7 +459,7 @@ def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
             jobs.y0,
             jobs.starts,
             jobs.frees,
-            jobs.bases,
+            (_control_basis(jobs.bases), jobs.bases[1:]),
             (
                 jobs.pool,
                 jobs.pool_free,
