@@ -54,12 +54,7 @@ from ._fit import (  # noqa: E402
     search_range,
     settling,
 )
-from ._sampling import DEFAULT_SUBSTEPS, Sampling, default_substeps, length_bucket  # noqa: E402
-from ._validate import Constraint, as_parameter  # noqa: E402
-from ._version import __version__  # noqa: E402, F401  (vfjax.__version__)
-from .cost import nmse  # noqa: E402
-from .descriptors import estimate_closure_duration  # noqa: E402
-from .integrator import (  # noqa: E402
+from ._integrate import (  # noqa: E402
     RESULTS,
     DenseOutput,
     Simulation,
@@ -69,6 +64,11 @@ from .integrator import (  # noqa: E402
     simulate,
     simulated_fold_areas,
 )
+from ._sampling import DEFAULT_SUBSTEPS, Sampling, default_substeps, length_bucket  # noqa: E402
+from ._validate import Constraint, as_parameter  # noqa: E402
+from ._version import __version__  # noqa: E402, F401  (vfjax.__version__)
+from .cost import nmse  # noqa: E402
+from .descriptors import estimate_closure_duration  # noqa: E402
 from .model import VocalFoldModel  # noqa: E402
 from .presets import PRESETS, initial_model, match_fundamental_frequency, paper_model, preset  # noqa: E402
 from .recording import FRAME_RATE_RANGE_HZ, Recording, load_recording, load_segments  # noqa: E402

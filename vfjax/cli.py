@@ -24,7 +24,7 @@ from ._version import __version__
 
 
 def _simulate_preset(name, fps, n_frames, t_start):
-    from .integrator import simulate
+    from ._integrate import simulate
     from .presets import preset
 
     return simulate(preset(name), fps, n_frames, t_start=t_start)
@@ -715,7 +715,7 @@ def main(argv=None) -> int:
     """Run the command line; returns the exit code: 0 done, 1 the fit or simulation failed
     (the reason on stderr), 2 bad input or arguments, 130 interrupted (Ctrl-C)."""
     args = build_parser().parse_args(argv)
-    from .integrator import SimulationError
+    from ._integrate import SimulationError
 
     if not (args.no_cache or os.environ.get("VFJAX_NO_CACHE")):
         use_compilation_cache()

@@ -5,9 +5,9 @@ import dataclasses
 import numpy as np
 
 from ._fit import default_warmup
+from ._integrate import simulate, simulated_fold_areas
 from ._validate import check_nonnegative
 from .descriptors import fundamental_frequency
-from .integrator import simulate, simulated_fold_areas
 from .model import VocalFoldModel
 from .presets import PRESSURE_KEY, preset
 from .recording import Recording

@@ -2,9 +2,9 @@
 
 import numpy as np
 
+from ._integrate import fitted_simulation
 from ._sampling import Sampling
 from .descriptors import estimate_closure_duration, fundamental_frequency
-from .integrator import fitted_simulation
 from .model import VocalFoldModel
 from .recording import Recording
 from .subject import Subject

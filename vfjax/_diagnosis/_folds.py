@@ -35,9 +35,9 @@ import jax
 import numpy as np
 
 from .._fit import FitResult, Swarm, fit_many
+from .._integrate import simulated_fold_areas
 from ..asymmetry import with_fold_areas
 from ..compare import noise_level
-from ..integrator import simulated_fold_areas
 from ..recording import Recording
 from ..terms.base import AbstractFoldPair
 from ..terms.folds import LeftRightAsymmetry

@@ -12,9 +12,9 @@ import numpy as np
 from scipy import stats
 
 from .._fit import FitResult
+from .._integrate import SampledGrid, sampled_grid, simulate_frames, window_size
 from .._programs import program
 from ..descriptors import fundamental_frequency
-from ..integrator import SampledGrid, sampled_grid, simulate_frames, window_size
 from ..recording import Recording
 from ._candidates import Candidate, as_candidates, extended, wrap_angle
 

@@ -22,16 +22,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._programs import program
-from .._sampling import Sampling, length_bucket
-from ..descriptors import fundamental_frequency
-from ..integrator import (
+from .._integrate import (
     SampledGrid,
     left_share,
     sampled_grid,
     simulate_frames,
     window_size,
 )
+from .._programs import program
+from .._sampling import Sampling, length_bucket
+from ..descriptors import fundamental_frequency
 from ..model import VocalFoldModel
 from ..recording import Recording
 

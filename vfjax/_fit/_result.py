@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 
+from .._integrate import Simulation, fitted_simulation
 from .._sampling import Sampling
-from ..integrator import Simulation, fitted_simulation
 from ..io import write_json
 from ..model import VocalFoldModel
 from ..recording import Recording

@@ -1,0 +1,157 @@
+"""A fit's compiled sampling: the `Sampling` as data (`SampledGrid`), so that one program
+per model structure and length bucket serves every frame rate, warm-up and time-shift range
+(`simulate_frames`, `fitted_simulation`)."""
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._sampling import Sampling, length_bucket
+from ..model import VocalFoldModel
+from ._events import _CHUNK, _DIVERGED, EVENTS_PER_SECOND, _integrate_loop
+from ._output import Simulation
+from ._simulate import _PER_FRAME, MAX_ITERATIONS, _sampled, _start
+
+#: Motion kept before the first frame (s): observation terms may read the displacement at
+#: earlier times (a mucosal delay reads x(t - tau), tau <= 1 ms).
+LOOKBACK = 0.002
+#: Event budget of a fit's simulation, per frame of its window.
+_EVENTS_PER_FRAME = 2
+#: A fit's dense output has rows for at least this many RK4 steps a frame (more round up to
+#: a power of two), so that every camera of 2 kHz or faster (`default_substeps` 8 to 4)
+#: shares one program per length bucket. Rows beyond those a simulation reaches cost no
+#: iterations (the loop stops when done): the compiled fits of 4 kHz recordings run as fast
+#: with rows for 8 steps a frame as with rows for 4 (`benchmarks/engine.py`, part c).
+_ROW_SUBSTEPS = 8
+
+
+class SampledGrid(eqx.Module):
+    """A `Sampling` as data, so that one compiled program serves every frame rate, warm-up
+    and time-shift range (`simulate_frames`). Build it with `sampled_grid`.
+
+    Attributes:
+        fps: frame rate (Hz).
+        h: RK4 step (s).
+        t_start: warm-up, the time of the first frame before any shift (s).
+        max_time_shift: largest time shift (s).
+        n_frames: frames that count (the rest of a length bucket is padding).
+        n_steps: grid steps to the last frame at the largest shift.
+        window_step: grid step where the kept motion begins (`LOOKBACK` before t_start).
+        warm_budget: most iterations before the window (steps plus an event budget).
+    """
+
+    fps: Array
+    h: Array
+    t_start: Array
+    max_time_shift: Array
+    n_frames: Array
+    n_steps: Array
+    window_step: Array
+    warm_budget: Array
+
+
+def sampled_grid(sampling: Sampling) -> SampledGrid:
+    """``sampling`` as a `SampledGrid` (concrete arrays)."""
+    h = sampling.step
+    n_steps = max(1, math.ceil(sampling.horizon / h - 1e-9))
+    window_step = max(0, math.floor((sampling.warmup - LOOKBACK) / h))
+    warm_budget = window_step + int(EVENTS_PER_SECOND * sampling.warmup) + 16
+    if n_steps + warm_budget > MAX_ITERATIONS:
+        raise ValueError(
+            f"simulating {sampling.horizon:.6g} s at {sampling.substeps} steps per frame of "
+            f"{sampling.fps:g} Hz needs more than the {MAX_ITERATIONS} iterations one "
+            "simulation may take: check the frame rate, frame count and warm-up"
+        )
+    i32 = np.int32
+    return SampledGrid(
+        fps=jnp.asarray(sampling.fps),
+        h=jnp.asarray(h),
+        t_start=jnp.asarray(sampling.warmup),
+        max_time_shift=jnp.asarray(sampling.max_time_shift),
+        n_frames=jnp.asarray(sampling.n_frames, i32),
+        n_steps=jnp.asarray(n_steps, i32),
+        window_step=jnp.asarray(window_step, i32),
+        warm_budget=jnp.asarray(warm_budget, i32),
+    )
+
+
+def window_size(sampling: Sampling) -> tuple[int, int]:
+    """The static sizes of a compiled fit's simulation: (frames, rows). Frames: the
+    `length_bucket` of the frame count; rows: the dense output's length, enough for the
+    frames, the time-shift range and the lookback (bucketed alike) at `_ROW_SUBSTEPS` steps
+    a frame (or ``substeps`` rounded up to a power of two, where more) and
+    `_EVENTS_PER_FRAME` events per frame. The frame rate and the steps a frame are then
+    data for every camera of 2 kHz or faster."""
+    extra = sampling.shift_frames + math.ceil(LOOKBACK * sampling.fps) + 2
+    frames = length_bucket(sampling.n_frames)
+    steps = max(_ROW_SUBSTEPS, 1 << (sampling.substeps - 1).bit_length())
+    rows = (steps + _EVENTS_PER_FRAME) * (frames + length_bucket(extra))
+    return frames, _CHUNK * -(-rows // _CHUNK)
+
+
+# Compiled as a program of its own, nested where it is called: a fit's or a diagnosis's
+# program simulates in several places (a shift profile, residuals, their Jacobian), and JAX
+# then traces the integrator once for all of them (tracing is paid in every process, even when
+# the persistent compilation cache holds the program).
+@eqx.filter_jit
+def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows: int):
+    """The frames of one simulation for the compiled fits: as `simulate` with
+    ``reverse_mode=False`` and ``throw=False``, but with every size that depends on the
+    recording traced (``grid``) and the frames padded to ``n_out`` (`window_size`).
+
+    The motion up to the window (`LOOKBACK` before the first frame) runs in a loop that keeps
+    no rows and whose length is data; the window's motion is kept in ``n_rows`` rows, so
+    ``Simulation.dense`` covers the window only. ``time_shift`` (s) may lie in [-LOOKBACK / 2,
+    ``grid.max_time_shift``]. Padding frames (beyond ``grid.n_frames``) have zero area.
+    Forward-mode derivatives only (`jax.jvp`, `jax.jacfwd`).
+    """
+    start = _start(model, jnp.asarray(model.contact_displacement, float), jnp.zeros((), float))
+    begin, end, rows = _integrate_loop(
+        model,
+        start,
+        h=grid.h,
+        n_steps=grid.n_steps,
+        n_iter=n_rows,
+        origin=grid.t_start,
+        warm=(grid.window_step, grid.warm_budget),
+    )
+    warmed = ~begin.active(grid.window_step) | begin.flag(_DIVERGED)
+    counted = jnp.arange(n_out) < grid.n_frames
+    times = grid.t_start + time_shift + jnp.arange(n_out) / grid.fps
+    # a polish may move the frames a little before the warm-up's end (half the lookback)
+    shift_ok = (time_shift >= -0.5 * LOOKBACK) & (time_shift <= grid.max_time_shift + 1e-12)
+    return _sampled(
+        model,
+        begin,
+        end,
+        rows,
+        times,
+        grid.n_steps,
+        model.is_valid(),
+        shift_ok,
+        counted,
+        warmed,
+    )
+
+
+def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift=0.0) -> Simulation:
+    """The `Simulation` of ``model`` sampled as a fit samples it (``sampling``, frames shifted
+    by ``time_shift`` s); its dense output covers the frames and a short lookback before
+    them. One compiled program per model structure and length bucket (`window_size`),
+    whatever the frame rate, frame count within the bucket and warm-up; forward-mode
+    derivatives only (`simulate_frames`)."""
+    n_out, n_rows = window_size(sampling)
+    model.check_step(sampling.step)
+    shift = jnp.asarray(float(time_shift))
+    sim = simulate_frames(model, sampled_grid(sampling), shift, n_out=n_out, n_rows=n_rows)
+    n = sampling.n_frames
+    # the recording's frames cut off the bucket on the host (a device slice would compile a
+    # program per frame count)
+    return eqx.tree_at(
+        lambda s: [getattr(s, f) for f in _PER_FRAME],
+        sim,
+        [np.asarray(getattr(sim, f))[:n] for f in _PER_FRAME],
+    )
