@@ -8,8 +8,10 @@ cycle-to-cycle variability (timing offsets of 30 us and amplitude factors of 2 %
 deviation per cycle, `TimingJitter` and `AmplitudeJitter`, and closure-duration jitter of
 0.3 %, `ClosureJitter`) and white noise of 1 or 3 px; each catalogue effect at three strengths
 (chosen by the oracle below, `--oracle`: the weakest near the detection limit), three seeds
-each, and recordings with no effect (ten seeds per subject and noise). Each is fitted as the
-command line does (`vfjax.fit_recording`) and diagnosed with the defaults (`vfjax.diagnose`).
+each, and recordings with no effect (ten seeds per subject and noise; and twelve of the cohort
+benchmark's kind, `COHORT_NULLS`: N2 and N4, 101 frames at 2 kHz and 201 at 4 kHz, closure
+jitter alone, 1 px). Each is fitted as the command line does (`vfjax.fit_recording`) and
+diagnosed with the defaults (`vfjax.diagnose`).
 
 Per effect and strength: the detection rate (the true effect is needed), how often the true
 effect ranks first among the needed ones, the recovered value over the truth (the gap's area
@@ -29,7 +31,7 @@ of seed 0 first), so that a partial run covers every case alike.
 each size of `ORACLE_SIZES`, both subjects and noises, seed 0, and prints its table (its own
 results file, ``diagnosis_oracle.jsonl`` by default).
 
-Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none]
+Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none|cohort-none]
 [--strength weak|medium|strong] [--seed S] [--limit N] [--pool N] [--warmup S] [--oracle]
 """
 
@@ -52,6 +54,11 @@ SUBJECTS = ("N1", "N3")  # male, female
 NOISE_PX = (1.0, 3.0)
 SEEDS = (0, 1, 2)
 NULL_SEEDS = tuple(range(10))
+#: No-effect recordings of the cohort benchmark's kind (benchmarks/cohort.py): the other two
+#: subjects, (frame rate, frames) of its shortest recordings, closure-duration jitter alone
+#: (a steady voice: the variability is at most the noise's), 1 px, three seeds each.
+COHORT_NULLS = {"subjects": ("N2", "N4"), "samplings": ((2000.0, 101), (4000.0, 201))}
+COHORT_NULL_SEEDS = (0, 1, 2)
 TIMING_SD = 30e-6  # s
 AMPLITUDE_SD = 0.02
 CLOSURE_JITTER = 0.003
@@ -94,24 +101,44 @@ SCALED = {"GlottalGap": "S", "PressureModulation": "P_s"}
 
 def cases():
     """Every recording of the benchmark: (key, subject, effect name or None, strength index,
-    noise, seed)."""
+    noise, seed, sampling), ``sampling`` None for 201 frames at 4 kHz with the benchmark's
+    variability, else the (frame rate, frames) of a no-effect recording of the cohort's kind
+    (`COHORT_NULLS`)."""
     out = []
+    for subject in COHORT_NULLS["subjects"]:
+        for fps, frames in COHORT_NULLS["samplings"]:
+            for seed in COHORT_NULL_SEEDS:
+                key = f"none/{subject}/{frames}f-{fps / 1000:g}kHz/closure/1px/{seed}"
+                out.append((key, subject, None, None, 1.0, seed, (fps, frames)))
     for subject in SUBJECTS:
         for noise in NOISE_PX:
             for seed in NULL_SEEDS:
-                out.append((f"none/{subject}/{noise:g}px/{seed}", subject, None, None, noise, seed))
+                key = f"none/{subject}/{noise:g}px/{seed}"
+                out.append((key, subject, None, None, noise, seed, None))
             for effect in EFFECTS:
                 for k, strength in enumerate(STRENGTHS):
                     for seed in SEEDS:
                         key = f"{effect}/{strength}/{subject}/{noise:g}px/{seed}"
-                        out.append((key, subject, effect, k, noise, seed))
+                        out.append((key, subject, effect, k, noise, seed, None))
     return sorted(out, key=lambda c: c[5])  # seed by seed (a stable sort)
 
 
-def make_recording(subject, effect, size, noise, seed, warmup=WARMUP):
+def _family(case) -> str:
+    """A case's effect, ``none`` or ``cohort-none`` (`COHORT_NULLS`), for ``--only``."""
+    return case[2] or ("none" if case[6] is None else "cohort-none")
+
+
+def make_recording(subject, effect, size, noise, seed, warmup=WARMUP, sampling=None):
     """The recording of one case, and the true model (None without an effect). ``size``: the
     effect's parameter (`EFFECTS`); ``warmup``: simulated time before its first frame (s;
-    None: `demo_recording`'s, a start-up)."""
+    None: `demo_recording`'s, a start-up); ``sampling``: None for the benchmark's frames and
+    variability, else (frame rate, frames) with closure-duration jitter alone."""
+    if sampling is not None:
+        fps, frames = sampling
+        rec = demo_recording(
+            subject, noise, seed, fps, frames, jitter=CLOSURE_JITTER, warmup=warmup
+        )
+        return rec, None
     model = vfjax.preset(subject)
     term = None
     if effect is not None:
@@ -179,10 +206,10 @@ COMMIT = _commit()
 
 
 def run_case(case, calibration=None, warmup=WARMUP) -> dict:
-    key, subject, effect, strength, noise, seed = case
+    key, subject, effect, strength, noise, seed, sampling = case
     calibration = calibration or vfjax.Calibration()
     size = None if effect is None else EFFECTS[effect][1][strength]
-    rec, truth = make_recording(subject, effect, size, noise, seed, warmup)
+    rec, truth = make_recording(subject, effect, size, noise, seed, warmup, sampling)
     t0 = time.perf_counter()
     first = vfjax.fit_recording(rec, progress=False)
     d = vfjax.diagnose(first, rec, calibration=calibration)
@@ -193,6 +220,9 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         "strength": None if strength is None else STRENGTHS[strength],
         "noise_px": noise,
         "seed": seed,
+        "fps": rec.fps,
+        "n_frames": rec.n_frames,
+        "variability": "closure" if sampling is not None else "benchmark",
         "seconds": time.perf_counter() - t0,
         "commit": COMMIT,
         "first_nmse": first.nmse,
@@ -233,6 +263,14 @@ def summary(rows):
     if nulls:
         alarms = sum(bool(r["needed"]) for r in nulls)
         print(f"no effect: false alarms {alarms}/{len(nulls)} ({alarms / len(nulls):.0%})")
+        for kind, words in (("benchmark", "N1, N3"), ("closure", "the cohort's kind")):
+            some = [r for r in nulls if r.get("variability", "benchmark") == kind]
+            if some:
+                flagged = sorted(f"{r['key']}: {r['needed']}" for r in some if r["needed"])
+                print(
+                    f"  {words}: {len(flagged)}/{len(some)}"
+                    + "".join(f"\n    {f}" for f in flagged)
+                )
         told = [r for r in nulls if "unconfirmed" in r]
         if told:
             flags = sum(bool(r["unconfirmed"]) for r in told)
@@ -339,7 +377,11 @@ def main():
         help="JSON-lines results file (default diagnosis_power.jsonl, with --oracle "
         "diagnosis_oracle.jsonl)",
     )
-    ap.add_argument("--only", help="one effect's cases, or 'none' for the no-effect ones")
+    ap.add_argument(
+        "--only",
+        help="one effect's cases, 'none' for the no-effect ones of N1 and N3, or "
+        "'cohort-none' for those of the cohort's kind (COHORT_NULLS)",
+    )
     ap.add_argument("--strength", choices=STRENGTHS, help="only this strength of the effects")
     ap.add_argument("--seed", type=int, help="only this seed's recordings")
     ap.add_argument("--limit", type=int, help="stop after this many new recordings")
@@ -373,7 +415,7 @@ def main():
     done = {r["key"] for r in rows}
     todo = [c for c in cases() if c[0] not in done]
     if args.only:
-        todo = [c for c in todo if (c[2] or "none") == args.only]
+        todo = [c for c in todo if _family(c) == args.only]
     if args.seed is not None:
         todo = [c for c in todo if c[5] == args.seed]
     if args.strength:

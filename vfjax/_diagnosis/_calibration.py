@@ -9,6 +9,7 @@ recording against null recordings searched alike, and sizes the needed effects
 (`bootstrap_interval`).
 """
 
+import contextlib
 import dataclasses
 import math
 import sys
@@ -233,55 +234,59 @@ def calibrate(
     else:
         spreads = NO_SPREADS
 
-    bar = _progress_bar(progress, calibration.replicates, recording.name)
+    # the bar is closed however the calibration ends (an interrupt, a failed simulation)
+    with _progress_bar(progress, calibration.replicates, recording.name) as bar:
 
-    def statistics(rows, nulls):  # ``nulls``: how many of the rows are null recordings
-        out = run_statistics(groups, rows, steps, n_cands)
-        if bar is not None:
-            bar.update(min(nulls, bar.total - bar.n))
-        return out
+        def statistics(rows, nulls):  # ``nulls``: how many of the rows are null recordings
+            out = run_statistics(groups, rows, steps, n_cands)
+            if bar is not None:
+                bar.update(min(nulls, bar.total - bar.n))
+            return out
 
-    rows = [observed, source.draw(size - 1, spreads)]
-    cc, cb, yb = statistics(np.concatenate(rows), size - 1)
-    main = groups[0].owner[0]  # a candidate of the shortest warm-up's group
-    q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
-    searched = np.array(
-        [math.nan if e is None else float(e.nmse) for e in (estimates or [None] * n_cands)]
-    )
-    has_search = np.isfinite(searched)
-    if tested_searches is not None:
-        has_search &= np.asarray(tested_searches, bool)
-    q_search = np.where(
-        has_search,
-        f_p_values(
-            cc[:1], np.where(has_search, searched, 1.0)[None], recording.n_frames, n_fitted, dofs
-        )[0],
-        1.0,
-    )
-    level_count = alpha * (calibration.replicates + 1)  # exceedances that rule a candidate out
-    nulls_q, controls = [], []
-    drawn, c, b = rows[1], cc[1:], cb[1:]  # the first batch's null recordings
-    kept = []  # each null recording's areas, controls and refits, for a search
-    while len(nulls_q) < calibration.replicates:
-        if len(c) == 0:
-            drawn = source.draw(size, spreads)
-            c, b, _ = statistics(drawn, size)
-        q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
-        q = np.where(np.isfinite(c), q, 0.0)  # a failed null counts against
-        take = min(size, calibration.replicates - len(nulls_q))
-        nulls_q += list(q[:take])
-        controls += list(c[:take, main])
-        kept.append((drawn[:take], c[:take], b[:take]))
-        c = b = []
-        family = family_p_values(q_obs, np.asarray(nulls_q))[0]
-        searches = family_p_values(q_search, np.asarray(nulls_q))[0]
-        open_ = np.minimum(family, np.where(has_search, searches, np.inf))
-        if bar is not None:
-            bar.set_postfix(p=f"{float(np.min(family)):.2g}")
-        if np.all(open_ * (len(nulls_q) + 1) > level_count):
-            break
-    if bar is not None:
-        bar.close()
+        rows = [observed, source.draw(size - 1, spreads)]
+        cc, cb, yb = statistics(np.concatenate(rows), size - 1)
+        main = groups[0].owner[0]  # a candidate of the shortest warm-up's group
+        q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
+        searched = np.array(
+            [math.nan if e is None else float(e.nmse) for e in (estimates or [None] * n_cands)]
+        )
+        has_search = np.isfinite(searched)
+        if tested_searches is not None:
+            has_search &= np.asarray(tested_searches, bool)
+        q_search = np.where(
+            has_search,
+            f_p_values(
+                cc[:1],
+                np.where(has_search, searched, 1.0)[None],
+                recording.n_frames,
+                n_fitted,
+                dofs,
+            )[0],
+            1.0,
+        )
+        # the exceedances that rule a candidate out
+        level_count = alpha * (calibration.replicates + 1)
+        nulls_q, controls = [], []
+        drawn, c, b = rows[1], cc[1:], cb[1:]  # the first batch's null recordings
+        kept = []  # each null recording's areas, controls and refits, for a search
+        while len(nulls_q) < calibration.replicates:
+            if len(c) == 0:
+                drawn = source.draw(size, spreads)
+                c, b, _ = statistics(drawn, size)
+            q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
+            q = np.where(np.isfinite(c), q, 0.0)  # a failed null counts against
+            take = min(size, calibration.replicates - len(nulls_q))
+            nulls_q += list(q[:take])
+            controls += list(c[:take, main])
+            kept.append((drawn[:take], c[:take], b[:take]))
+            c = b = []
+            family = family_p_values(q_obs, np.asarray(nulls_q))[0]
+            searches = family_p_values(q_search, np.asarray(nulls_q))[0]
+            open_ = np.minimum(family, np.where(has_search, searches, np.inf))
+            if bar is not None:
+                bar.set_postfix(p=f"{float(np.min(family)):.2g}")
+            if np.all(open_ * (len(nulls_q) + 1) > level_count):
+                break
     nulls_q = np.asarray(nulls_q)
     n = len(nulls_q)
     family, marginal, nulls_max, centred = family_p_values(q_obs, nulls_q)
@@ -382,9 +387,10 @@ def calibrate(
 
 def _progress_bar(show: bool | None, total: int, name: str):
     """A progress bar of ``total`` null recordings of the recording ``name`` on stderr
-    where ``show`` (where it is None: on a terminal), else None."""
+    where ``show`` (where it is None: on a terminal), as a context that closes it; else a
+    context of None."""
     if not (sys.stderr.isatty() if show is None else show):
-        return None
+        return contextlib.nullcontext()
     from tqdm.auto import tqdm
 
     return tqdm(total=total, desc=f"calibrate {name}", unit="null", leave=False)
