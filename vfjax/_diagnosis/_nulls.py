@@ -256,13 +256,19 @@ def variability_size(source: "_NullSource", fitted, kind: Spreads, n: int = 8) -
     clean GAW for the null recordings), the excess over what noise alone leaves taken as
     proportional to the variance, solved twice: a mechanism the model lacks that varies
     from cycle to cycle shows there too. Where ``kind`` is zero, the trial spreads'
-    proportions (`_TRIAL`)."""
+    proportions (`_TRIAL`). Where the misfit lies within what noise alone leaves, ``kind``
+    itself (zero spreads where it is `variability_kind`'s fallback, `_TRIAL`): the
+    deviation, a mean over the frames, can hide a wander of the timing over the cycles that
+    `variability_measures` see, and null recordings without it would let a candidate that
+    fits the wander pass for an effect."""
     rec = source.recording
     want = cycle_deviation(rec.area, fitted, rec.fps)
     base = _deviation(source, source.draw(n))
     sd = np.asarray(kind if any(kind) else _TRIAL, float)
-    if not (np.isfinite(want) and np.isfinite(base)) or want <= base:
+    if not (np.isfinite(want) and np.isfinite(base)):
         return NO_SPREADS
+    if want <= base:
+        return NO_SPREADS if kind == _TRIAL else Spreads(*(float(x) for x in kind))
     for _ in range(2):
         got = _deviation(source, source.draw(n, Spreads(*sd)))
         if not np.isfinite(got) or got <= base:
