@@ -26,7 +26,7 @@ EVENTS_PER_SECOND = 4000.0
 #: (benchmarks/README.md).
 _UNROLL = 1
 #: Iterations per trip of the early-stopping loop: a scan of 16, whose rows are written as one
-#: block (writing each iteration's row on its own was slower: by a third at batch 1, 6 % at 64,
+#: block (writing each iteration's row on its own is slower: by a third at batch 1, 6 % at 64,
 #: 14 % at 256). The loop's length is rounded up to a multiple of it, so it overshoots the last
 #: needed iteration by at most 15.
 _CHUNK = 16
