@@ -235,6 +235,14 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         "ranking": d.ranking,
         "p_values": {n: f.p_value for n, f in d.refits.items()},
         "replicates": d.calibrated.replicates if d.calibrated is not None else None,
+        # the null recordings' variability: timing offsets (s), amplitude factors, periods (s)
+        "null_spreads": [
+            d.calibrated.variability.timing_sd,
+            d.calibrated.variability.amplitude_sd,
+            d.calibrated.variability.period_sd,
+        ]
+        if d.calibrated is not None
+        else None,
         "pool": calibration.pool,
         "warmup": warmup,
     }
