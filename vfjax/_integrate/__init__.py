@@ -33,15 +33,7 @@ off a simulation), `_simulate` (`simulate`, its validation and program), `_frame
 compiled sampling: `SampledGrid`, `simulate_frames`, `fitted_simulation`).
 """
 
-from ._events import EVENTS_PER_SECOND
-from ._frames import (
-    LOOKBACK,
-    SampledGrid,
-    fitted_simulation,
-    sampled_grid,
-    simulate_frames,
-    window_size,
-)
+from ._frames import SampledGrid, fitted_simulation, sampled_grid, simulate_frames, window_size
 from ._output import (
     RESULTS,
     DenseOutput,
@@ -50,15 +42,12 @@ from ._output import (
     fold_displacements,
     glottal_flow,
     left_share,
-    result_message,
     simulated_fold_areas,
 )
-from ._simulate import MAX_ITERATIONS, iteration_bucket, simulate
+from ._simulate import simulate
 
+# what the rest of vfjax imports (the public names among them re-exported by `vfjax`)
 __all__ = [
-    "EVENTS_PER_SECOND",
-    "LOOKBACK",
-    "MAX_ITERATIONS",
     "RESULTS",
     "DenseOutput",
     "SampledGrid",
@@ -67,9 +56,7 @@ __all__ = [
     "fitted_simulation",
     "fold_displacements",
     "glottal_flow",
-    "iteration_bucket",
     "left_share",
-    "result_message",
     "sampled_grid",
     "simulate",
     "simulate_frames",
