@@ -55,7 +55,8 @@ class _Jobs:
 @program
 def _refit_control(problem, y0, free, basis, steps: int):
     """The control's refit on the problem's own recording: (point, NMSE)."""
-    return levenberg_marquardt(dataclasses.replace(problem, free=free).residual, y0, basis, steps)
+    p = dataclasses.replace(problem, free=free)
+    return levenberg_marquardt(p.residual, y0, basis, steps, p.residual_and_jacobian)
 
 
 def settled(jobs: _Jobs, steps: int) -> _Jobs:
@@ -116,7 +117,9 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
             moved_cost = jnp.where(jnp.isfinite(moved_cost), moved_cost, jnp.inf)
             begin = jnp.stack([y0, moved[jnp.argmin(moved_cost)]])
         ycs, ccs = jax.vmap(
-            lambda y: levenberg_marquardt(pc.residual, y, control_basis, 2 * steps)
+            lambda y: levenberg_marquardt(
+                pc.residual, y, control_basis, 2 * steps, pc.residual_and_jacobian
+            )
         )(begin)
         yc, cc = ycs[jnp.argmin(ccs)], jnp.min(ccs)
         if entries.shape[0]:
@@ -135,7 +138,7 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
                 mine = jnp.where(entry_owner == owner, profiled_cost, jnp.inf)
                 pick = jnp.argsort(mine)[jnp.maximum(rank, 0)]
                 y = jnp.where(rank >= 0, chosen[pick], y)
-            return levenberg_marquardt(pj.residual, y, basis, steps)
+            return levenberg_marquardt(pj.residual, y, basis, steps, pj.residual_and_jacobian)
 
         yj, cj = jax.vmap(job)(starts, frees[1:], job_bases, ranks, job_owner)
 
@@ -143,7 +146,11 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
             mine = jnp.where(job_owner == cand, cj, jnp.inf)
             best = jnp.argmin(mine)
             y, cost = levenberg_marquardt(
-                pc.residual, jnp.where(kept, yj[best], y0), control_basis, steps
+                pc.residual,
+                jnp.where(kept, yj[best], y0),
+                control_basis,
+                steps,
+                pc.residual_and_jacobian,
             )
             return y, jnp.where(jnp.isfinite(mine[best]), cost, jnp.inf)
 
@@ -391,14 +398,16 @@ def refit_jobs(
             starts.append(b)
             frees.append(free)
             owner.append(k)
-    # each refit's search directions: its free parameters, the time shift and S
+    # each refit's search directions: its free parameters first, the time shift and S in
+    # the last rows (`Problem.residual_and_jacobian`), zero rows between them as padding
     n_y = y0.size
-    movable = [np.r_[f, np.ones(n_y - len(names))] for f in frees]
-    width = int(max(m.sum() for m in movable))
+    tail = n_y - len(names)
+    width = int(max(np.sum(f) for f in frees)) + tail
     bases = np.zeros((len(frees), width, n_y))
-    for i, m in enumerate(movable):
-        idx = np.flatnonzero(m)
+    for i, f in enumerate(frees):
+        idx = np.flatnonzero(f)
         bases[i, np.arange(idx.size), idx] = 1.0
+        bases[i, width - tail + np.arange(tail), len(names) + np.arange(tail)] = 1.0
     return _Jobs(
         problem,
         jnp.asarray(y0),

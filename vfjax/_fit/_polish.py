@@ -15,8 +15,9 @@ def residual(y, problem: Problem):
 
     optimistix linearises the residual function at every step and keeps the linearisation in
     its state. Through the simulator that keeps every intermediate of the integration: slow
-    to compile and to carry. This rule computes the Jacobian's columns at once (forward mode,
-    one batched jvp) and returns J @ dy, so the linearisation is one (frames, params) matrix.
+    to compile and to carry. This rule computes the Jacobian's columns at once
+    (`Problem.residual_and_jacobian`: forward mode, one batched jvp) and returns J @ dy, so
+    the linearisation is one (frames, params) matrix.
     Differentiates in ``y`` only (the solver's variable)."""
     return problem.residual(y)
 
@@ -36,10 +37,13 @@ _DAMPING_START = 1.0  # the first step tries 1e-4 and 10
 _DAMPING_RISE = 1e4  # after a step that no trial improves
 
 
-def levenberg_marquardt(residual, y0, basis, steps: int):
+def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None):
     """``steps`` Levenberg-Marquardt steps on ``residual`` from ``y0`` within the span of the
     rows of ``basis`` (unit vectors of the free coordinates; zero rows are ignored), keeping
-    the best point: (point, its sum of squares).
+    the best point: (point, its sum of squares). ``jacobian``: a function of a point and
+    the basis that returns the residual there and its derivatives along the rows as
+    columns (such as `Problem.residual_and_jacobian`); by default `jacobian_columns` of
+    ``residual``.
 
     The best is kept over every evaluation, the Jacobian's residual at each step's point
     included: near a grazing closure the model is discontinuous, and the same point can
@@ -68,11 +72,15 @@ def levenberg_marquardt(residual, y0, basis, steps: int):
         c0 = jnp.sum(residual(y0) ** 2)
         return y0, jnp.where(jnp.isfinite(c0), c0, jnp.inf)
     ratios = jnp.asarray(_DAMPING_TRIALS, y0.dtype)
+    if jacobian is None:
+
+        def jacobian(y, basis):
+            return jacobian_columns(residual, y, basis)
 
     def step(carry, _):
         y, damping, y_best, c_best = carry
         # the residual at y comes with its Jacobian: no simulation of its own
-        r, j = jacobian_columns(residual, y, basis)
+        r, j = jacobian(y, basis)
         c = jnp.sum(r**2)
         c = jnp.where(jnp.isfinite(c), c, jnp.inf)
         y_best, c_best = _better((y, c), (y_best, c_best))
@@ -111,7 +119,7 @@ def _better(new, old):
 def _residual_and_jacobian(y, problem: Problem):
     # a nested program: optimistix traces the linearisation more than once per solve, and
     # each trace then reuses this one
-    return jacobian_columns(problem.residual, y, jnp.eye(y.shape[0], dtype=y.dtype))
+    return problem.residual_and_jacobian(y, jnp.eye(y.shape[0], dtype=y.dtype))
 
 
 @residual.defjvp

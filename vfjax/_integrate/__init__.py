@@ -30,10 +30,18 @@ through a `lax.scan` of the bound's length that computes the same values.
 The package: `_events` (the stepping: flags, one iteration, the early-stopping loop and the
 differentiated scan), `_output` (`DenseOutput`, `Simulation`, `RESULTS` and what is read
 off a simulation), `_simulate` (`simulate`, its validation and program), `_frames` (a fit's
-compiled sampling: `SampledGrid`, `simulate_frames`, `fitted_simulation`).
+compiled sampling: `SampledGrid`, `simulate_frames` and its two stages, `fitted_simulation`).
 """
 
-from ._frames import SampledGrid, fitted_simulation, sampled_grid, simulate_frames, window_size
+from ._frames import (
+    SampledGrid,
+    fitted_simulation,
+    integrate_window,
+    sample_window,
+    sampled_grid,
+    simulate_frames,
+    window_size,
+)
 from ._output import (
     RESULTS,
     DenseOutput,
@@ -56,7 +64,9 @@ __all__ = [
     "fitted_simulation",
     "fold_displacements",
     "glottal_flow",
+    "integrate_window",
     "left_share",
+    "sample_window",
     "sampled_grid",
     "simulate",
     "simulate_frames",

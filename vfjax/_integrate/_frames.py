@@ -97,19 +97,15 @@ def window_size(sampling: Sampling) -> tuple[int, int]:
 # then traces the integrator once for all of them (tracing is paid in every process, even when
 # the persistent compilation cache holds the program).
 @eqx.filter_jit
-def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows: int):
-    """The frames of one simulation for the compiled fits: as `simulate` with
-    ``reverse_mode=False`` and ``throw=False``, but with every size that depends on the
-    recording traced (``grid``) and the frames padded to ``n_out`` (`window_size`).
+def integrate_window(model, grid: SampledGrid, *, n_rows: int):
+    """The integration behind `simulate_frames`: ``(begin, end, rows)``, the carry where the
+    kept rows start, the final carry and the ``n_rows`` dense rows of the window.
 
     The motion up to the window (`LOOKBACK` before the first frame) runs in a loop that keeps
-    no rows and whose length is data; the window's motion is kept in ``n_rows`` rows, so
-    ``Simulation.dense`` covers the window only. ``time_shift`` (s) may lie in [-LOOKBACK / 2,
-    ``grid.max_time_shift``]. Padding frames (beyond ``grid.n_frames``) have zero area.
-    Forward-mode derivatives only (`jax.jvp`, `jax.jacfwd`).
-    """
+    no rows and whose length is data. It does not depend on the frames' time shift: a fit
+    moves the frames over one integration (`sample_window`). Forward-mode derivatives only."""
     start = _start(model, jnp.asarray(model.contact_displacement, float), jnp.zeros((), float))
-    begin, end, rows = _integrate_loop(
+    return _integrate_loop(
         model,
         start,
         h=grid.h,
@@ -118,6 +114,12 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
         origin=grid.t_start,
         warm=(grid.window_step, grid.warm_budget),
     )
+
+
+def sample_window(model, grid: SampledGrid, time_shift, integration, *, n_out: int):
+    """The frames of ``integration`` (`integrate_window`'s output for ``model``) shifted by
+    ``time_shift`` (s), padded to ``n_out``: `simulate_frames`'s `Simulation`."""
+    begin, end, rows = integration
     warmed = ~begin.active(grid.window_step) | begin.flag(_DIVERGED)
     counted = jnp.arange(n_out) < grid.n_frames
     times = grid.t_start + time_shift + jnp.arange(n_out) / grid.fps
@@ -135,6 +137,21 @@ def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows:
         counted,
         warmed,
     )
+
+
+@eqx.filter_jit
+def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows: int):
+    """The frames of one simulation for the compiled fits: as `simulate` with
+    ``reverse_mode=False`` and ``throw=False``, but with every size that depends on the
+    recording traced (``grid``) and the frames padded to ``n_out`` (`window_size`).
+
+    ``Simulation.dense`` covers the window only (`integrate_window`). ``time_shift`` (s) may
+    lie in [-LOOKBACK / 2, ``grid.max_time_shift``]. Padding frames (beyond
+    ``grid.n_frames``) have zero area. Forward-mode derivatives only (`jax.jvp`,
+    `jax.jacfwd`).
+    """
+    integration = integrate_window(model, grid, n_rows=n_rows)
+    return sample_window(model, grid, time_shift, integration, n_out=n_out)
 
 
 def fitted_simulation(model: VocalFoldModel, sampling: Sampling, time_shift=0.0) -> Simulation:
