@@ -254,16 +254,16 @@ def test_lm_linearisation_is_the_residuals_jacobian():
         fd = (np.asarray(at(y + e, problem)) - np.asarray(at(y - e, problem))) / (2 * h)
         assert np.linalg.norm(jac[:, i] - fd) <= 0.02 * np.linalg.norm(fd), i
     # a refit's basis as the diagnosis's statistic builds it: physical rows (one moving the
-    # time shift too), a zero row of padding, the time shift and log S in the last rows;
-    # the shift and S are differentiated through the sampling alone, the rest through the
-    # integration, and each column is the derivative along its row
+    # time shift too), the time shift, log S and a zero row of padding; the shift and S are
+    # differentiated through the sampling alone, the rest through the integration, and each
+    # column is the derivative along its row
     basis = np.zeros((5, y.size))
-    basis[0, 0] = basis[3, 4] = basis[4, 5] = 1.0
+    basis[0, 0] = basis[2, 4] = basis[3, 5] = 1.0
     basis[1, [1, 4]] = (1.0, 0.5)
     r, columns = eqx.filter_jit(lambda y, b, p: p.residual_and_jacobian(y, b))(y, basis, problem)
     np.testing.assert_allclose(r, np.asarray(at(y, problem)), rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(columns, np.asarray(direct) @ basis.T, rtol=1e-10, atol=1e-14)
-    assert not np.asarray(columns)[:, 2].any()
+    assert not np.asarray(columns)[:, 4].any()
 
 
 def _compilations():

@@ -398,16 +398,15 @@ def refit_jobs(
             starts.append(b)
             frees.append(free)
             owner.append(k)
-    # each refit's search directions: its free parameters first, the time shift and S in
-    # the last rows (`Problem.residual_and_jacobian`), zero rows between them as padding
+    # each refit's search directions: its free parameters, the time shift and S, then zero
+    # rows of padding (`Problem.residual_and_jacobian`: the last rows move no physical one)
     n_y = y0.size
-    tail = n_y - len(names)
-    width = int(max(np.sum(f) for f in frees)) + tail
+    movable = [np.r_[f, np.ones(n_y - len(names))] for f in frees]
+    width = int(max(m.sum() for m in movable))
     bases = np.zeros((len(frees), width, n_y))
-    for i, f in enumerate(frees):
-        idx = np.flatnonzero(f)
+    for i, m in enumerate(movable):
+        idx = np.flatnonzero(m)
         bases[i, np.arange(idx.size), idx] = 1.0
-        bases[i, width - tail + np.arange(tail), len(names) + np.arange(tail)] = 1.0
     return _Jobs(
         problem,
         jnp.asarray(y0),
