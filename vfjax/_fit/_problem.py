@@ -269,13 +269,14 @@ class Problem(eqx.Module):
         The last ``point_size - len(names)`` rows of ``basis`` must not move a physical
         coordinate (they move the time shift, log S or nothing); the others may move any
         (every search basis has the free physical coordinates first, then the time shift
-        and S, then any zero rows of padding). Neither the
-        shift nor S changes the integration, which only samples it later: the integration is
-        differentiated along the rows but the last (one batched jvp, a tangent per row), then
-        the sampling along every row, with the integration's tangents (zero for the last
-        rows). Two fewer tangents through the integrator than differentiating every row
-        through it (a fit's Jacobian of four physical parameters: about a quarter less
-        time)."""
+        and S, then any zero rows of padding).
+
+        Neither the shift nor S changes the integration, which only samples it later: the
+        integration is differentiated along the rows but the last (one batched jvp, a
+        tangent per row), then the sampling along every row, with the integration's tangents
+        (zero for the last rows). The columns are those of one jvp through both, bit for
+        bit, with two fewer tangents through the integrator (a fit's Jacobian of four
+        physical parameters: about a quarter less time)."""
         n = len(self.names)
         m = self.point_size - n  # the time shift and log S
 
