@@ -52,11 +52,16 @@ class _Jobs:
     restarts: jax.Array  # (1 + control_starts, names) or (0, names)
 
 
+def _refit(problem, y0, basis, steps: int):
+    """`levenberg_marquardt` on ``problem``'s residual, with its Jacobian
+    (`Problem.residual_and_jacobian`): (point, NMSE)."""
+    return levenberg_marquardt(problem.residual, y0, basis, steps, problem.residual_and_jacobian)
+
+
 @program
 def _refit_control(problem, y0, free, basis, steps: int):
     """The control's refit on the problem's own recording: (point, NMSE)."""
-    p = dataclasses.replace(problem, free=free)
-    return levenberg_marquardt(p.residual, y0, basis, steps, p.residual_and_jacobian)
+    return _refit(dataclasses.replace(problem, free=free), y0, basis, steps)
 
 
 def settled(jobs: _Jobs, steps: int) -> _Jobs:
@@ -116,11 +121,7 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
             moved, moved_cost = jax.vmap(pc.start)(y0[:n_names] + restarts)
             moved_cost = jnp.where(jnp.isfinite(moved_cost), moved_cost, jnp.inf)
             begin = jnp.stack([y0, moved[jnp.argmin(moved_cost)]])
-        ycs, ccs = jax.vmap(
-            lambda y: levenberg_marquardt(
-                pc.residual, y, control_basis, 2 * steps, pc.residual_and_jacobian
-            )
-        )(begin)
+        ycs, ccs = jax.vmap(lambda y: _refit(pc, y, control_basis, 2 * steps))(begin)
         yc, cc = ycs[jnp.argmin(ccs)], jnp.min(ccs)
         if entries.shape[0]:
 
@@ -138,20 +139,14 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
                 mine = jnp.where(entry_owner == owner, profiled_cost, jnp.inf)
                 pick = jnp.argsort(mine)[jnp.maximum(rank, 0)]
                 y = jnp.where(rank >= 0, chosen[pick], y)
-            return levenberg_marquardt(pj.residual, y, basis, steps, pj.residual_and_jacobian)
+            return _refit(pj, y, basis, steps)
 
         yj, cj = jax.vmap(job)(starts, frees[1:], job_bases, ranks, job_owner)
 
         def control_from(cand):
             mine = jnp.where(job_owner == cand, cj, jnp.inf)
             best = jnp.argmin(mine)
-            y, cost = levenberg_marquardt(
-                pc.residual,
-                jnp.where(kept, yj[best], y0),
-                control_basis,
-                steps,
-                pc.residual_and_jacobian,
-            )
+            y, cost = _refit(pc, jnp.where(kept, yj[best], y0), control_basis, steps)
             return y, jnp.where(jnp.isfinite(mine[best]), cost, jnp.inf)
 
         def padding(cand):
