@@ -205,7 +205,9 @@ def _problem(model, rec, params=("S", "K", "C_f")):
 
 def test_swarm_cost_is_the_best_shift_of_direct_simulations():
     """The swarm reads every time shift off one simulation; each candidate shift, simulated
-    directly with that delay, gives the same cost, and none does better."""
+    directly with that delay, gives the same cost, and none does better. The swarm's
+    simulation is integrated in single precision (`integrate_window_single`): the costs
+    agree to its rounding, far below any difference between fits."""
     truth = vfjax.preset("N3")
     rec = _recording(truth, t_start=0.0237, noise_px=1.0)
     problem = _problem(_start(truth), rec)
@@ -226,11 +228,11 @@ def test_swarm_cost_is_the_best_shift_of_direct_simulations():
         direct.append(float(np.sum((rec.area - s * g) ** 2)))
     direct = np.array(direct) / float(np.sum(rec.area**2))
     assert len(direct) > 2 * FPS * 0.005  # shifts over more than a cycle were tried
-    assert float(cost) == pytest.approx(direct.min(), rel=1e-9)
+    assert float(cost) == pytest.approx(direct.min(), rel=1e-5)
     assert round(float(shift * problem.period) * 2 * FPS) == int(np.argmin(direct))
     y, start_cost = eqx.filter_jit(lambda p, z: p.start(z))(problem, z)
     r = eqx.filter_jit(lambda p, y: p.residual(y))(problem, y)
-    assert float(np.sum(r**2)) == pytest.approx(float(start_cost), rel=1e-9)
+    assert float(np.sum(r**2)) == pytest.approx(float(start_cost), rel=1e-5)
 
 
 def test_lm_linearisation_is_the_residuals_jacobian():

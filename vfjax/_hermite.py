@@ -24,7 +24,10 @@ def hermite_slope(theta, y0, d0, y1, d1):
     )
 
 
-def _safe_div(num, den, tiny=1e-300):
+def _safe_div(num, den):
+    # below `tiny` the quotient counts as undefined (1e-300 in double precision; the swarm's
+    # single-precision integrations, `integrate_window_single`, use 1e-30)
+    tiny = 1e-300 if jnp.result_type(den) == jnp.float64 else 1e-30
     ok = jnp.abs(den) > tiny
     return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
 

@@ -25,6 +25,7 @@ import numpy as np
 from .._integrate import (
     SampledGrid,
     integrate_window,
+    integrate_window_single,
     left_share,
     sample_window,
     sampled_grid,
@@ -196,7 +197,8 @@ class Problem(eqx.Module):
         projected S and the cost need at every shift are correlations of the measured GAW
         with the grid's even and odd samples. (Observation terms act pointwise in time.)"""
         model = self.model_at(jnp.concatenate([z_phys, jnp.zeros(1)])).set(S=1.0)
-        sim = self.simulate(model, 0.0)
+        integration = integrate_window_single(model, self.grid, n_rows=self.n_rows)
+        sim = sample_window(model, self.grid, 0.0, integration, n_out=self.n_out)
         ok = sim.complete
         q, n = _SHIFTS_PER_FRAME, self.n_shifts
         length = q * (-(-n // q) + self.n_out - 1)  # whole rows of q samples

@@ -5,6 +5,7 @@ per model structure and length bucket serves every frame rate, warm-up and time-
 import math
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -114,6 +115,37 @@ def integrate_window(model, grid: SampledGrid, *, n_rows: int):
         origin=grid.t_start,
         warm=(grid.window_step, grid.warm_budget),
     )
+
+
+def _with_precision(tree, single: bool):
+    """``tree`` with its floating arrays in single (``single``) or double precision and, for
+    single, its 64-bit integers in 32 bits."""
+
+    def cast(x):
+        if not eqx.is_array(x):
+            return x
+        if jnp.issubdtype(x.dtype, jnp.floating):
+            return x.astype(jnp.float32 if single else jnp.float64)
+        if single and x.dtype == jnp.int64:
+            return x.astype(jnp.int32)
+        return x
+
+    return jax.tree.map(cast, tree)
+
+
+def integrate_window_single(model, grid: SampledGrid, *, n_rows: int):
+    """`integrate_window` in single precision, its output returned in double.
+
+    For the swarm's shift profile, which ranks candidate points and needs no derivatives: a
+    vmapped single-precision integration takes about half the time of a double one on a CPU
+    (twice the lanes per vector instruction). Every constant of the integration and of the
+    model's terms is traced in single precision too (JAX's 64-bit mode off while tracing).
+    The polish and every reported figure use the double-precision integration."""
+    with jax.enable_x64(False):
+        out = integrate_window(
+            _with_precision(model, True), _with_precision(grid, True), n_rows=n_rows
+        )
+    return _with_precision(out, False)
 
 
 def sample_window(model, grid: SampledGrid, time_shift, integration, *, n_out: int):
