@@ -162,7 +162,8 @@ def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one):
 #: point grazes x_0, so that whether a grazing cycle is held closed depends on the last bit
 #: of rounding (a batched and a single simulation then differ by a whole closed phase). The
 #: ramp makes the motion continuous there; 1e-8 cm (0.1 nm) is far below anything a camera
-#: resolves and far above rounding (~1e-18 cm).
+#: resolves and far above double precision's rounding (~1e-18 cm); single precision's (the
+#: swarm's simulations, `integrate_window_single`) is about 1e-9 cm at the folds' amplitude.
 _HOLD_RAMP = 1e-8
 
 
