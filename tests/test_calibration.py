@@ -15,7 +15,7 @@ from vfjax._diagnosis._cycles import cycle_projections, variability_test
 from vfjax._diagnosis._nulls import Spreads, _NullSource, variability_kind
 from vfjax._diagnosis._options import Calibration
 from vfjax._diagnosis._statistic import _fit_point, f_p_values, family_p_values
-from vfjax._fit._polish import levenberg_marquardt
+from vfjax._fit._polish import jacobian_columns, levenberg_marquardt
 from vfjax.diagnosis import default_candidates
 
 FPS = 4000.0
@@ -99,6 +99,8 @@ def test_random_factors_are_seeded_and_validated():
         vfjax.StiffnessJitter(np.ones(3), 0.0)
     with pytest.raises(ValueError, match="Calibration"):
         Calibration(replicates=0)
+    with pytest.raises(ValueError, match="jacobian_every"):
+        Calibration(jacobian_every=0)
 
 
 def test_cycle_projections_read_a_constant_offset_and_gain(n3):
@@ -171,6 +173,41 @@ def test_the_statistics_solver_finds_scipys_least_squares():
     np.testing.assert_allclose(found[:3], truth.x, rtol=1e-6)
     assert found[3] == 0.4
     assert float(cost) == pytest.approx(2 * truth.cost, rel=1e-9)
+
+
+def test_the_statistics_solver_with_secant_updates_finds_scipys_least_squares():
+    # as above, with the Jacobian computed at steps 0, 3, 6, ... and Broyden's secant
+    # updates between: the same optimum within ten steps; its Jacobian is computed three
+    # times in seven steps, also for a vmapped batch (a real branch, not both sides masked)
+    t = np.linspace(0, 1, 80)
+    rng = np.random.default_rng(0)
+    y = 1.3 * np.exp(-2.1 * t) * np.sin(7.0 * t + 0.4) + 0.01 * rng.standard_normal(t.size)
+
+    def residual(p):
+        return p[0] * jnp.exp(-p[1] * t) * jnp.sin(p[2] * t + p[3]) - y
+
+    start = np.array([1.0, 1.5, 6.5, 0.4])
+    basis = jnp.eye(4)[:3]
+    truth = least_squares(lambda q: np.asarray(residual(np.r_[q, 0.4])), start[:3], xtol=1e-14)
+    found, cost = jax.jit(lambda s: levenberg_marquardt(residual, s, basis, 10, None, 3))(start)
+    np.testing.assert_allclose(found[:3], truth.x, rtol=1e-6)
+    assert float(cost) == pytest.approx(2 * truth.cost, rel=1e-9)
+
+    calls = []
+
+    def jacobian(p, b):
+        jax.debug.callback(lambda: calls.append(1))
+        return jacobian_columns(residual, p, b)
+
+    def solve(s):
+        return levenberg_marquardt(residual, s, basis, 7, jacobian, 3)
+
+    jax.block_until_ready(jax.jit(solve)(start))
+    assert len(calls) == 3
+    jax.block_until_ready(jax.jit(jax.vmap(solve))(np.stack([start, 1.01 * start])))
+    assert len(calls) == 6
+    with pytest.raises(ValueError, match="jacobian_every"):
+        levenberg_marquardt(residual, start, basis, 7, None, 0)
 
 
 def test_the_statistics_solver_steps_short_of_a_jump_at_once():
@@ -444,7 +481,7 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
         "long": (np.array([3.0, 1.2]), np.array([[2.5, 2.0], [1.1, 0.9]])),
     }
 
-    def fake(problem, y0, starts, frees, bases, pool, restarts, data, steps):
+    def fake(problem, y0, starts, frees, bases, pool, restarts, data, steps, jacobian_every):
         cc, cj = results[problem]
         yj = np.stack([np.stack([np.full(2, c) for c in row]) for row in cj])
         return cc, np.zeros((2, 2)), cj, yj
@@ -467,7 +504,9 @@ def test_a_candidate_after_a_longer_warmup_answers_to_the_best_control(monkeypat
         SimpleNamespace(problem="fit", owner=(0, 1, 1), **unused),
         SimpleNamespace(problem="long", owner=(2, 2), **unused),
     ]
-    controls, best, points = cal.run_statistics(groups, np.zeros((2, 5)), steps=3, n_cands=3)
+    controls, best, points = cal.run_statistics(
+        groups, np.zeros((2, 5)), vfjax.Calibration(steps=3), n_cands=3
+    )
     np.testing.assert_allclose(controls[:, :2], [[1.0, 1.0], [2.0, 2.0]])
     np.testing.assert_allclose(controls[:, 2], [1.0, 1.2])  # min(3.0, 1.0), min(1.2, 2.0)
     np.testing.assert_allclose(best, [[0.9, 0.5, 2.0], [1.5, 1.8, 0.9]])
@@ -490,7 +529,7 @@ own = np.asarray(groups[0].problem.measured)
 data = np.stack([own + np.random.default_rng(i).normal(0, 2, own.shape) for i in range(16)])
 own_sampling = sorted(set(k for k in groups[0].owner if k >= 0))  # the fit's own sampling
 for _ in range(3):
-    control, best, _ = C.run_statistics(groups, data, vfjax.Calibration().steps, len(cands))
+    control, best, _ = C.run_statistics(groups, data, vfjax.Calibration(), len(cands))
     assert np.all(np.isfinite(control))
     assert np.all(best[:, own_sampling] <= control[:, own_sampling] + 1e-15)
 print("ok")
@@ -563,7 +602,7 @@ def test_the_statistics_control_reaches_the_paper_models_best_on_wandering_null_
     controls = {}
     for starts in (0, 16):
         groups = C.refit_groups(fit, rec, cands, None, Calibration(control_starts=starts))
-        controls[starts] = C.run_statistics(groups, nulls, Calibration().steps, 1)[0][:, 0]
+        controls[starts] = C.run_statistics(groups, nulls, Calibration(), 1)[0][:, 0]
     best = np.array(
         [
             vfjax.fit(

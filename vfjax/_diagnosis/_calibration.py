@@ -211,7 +211,6 @@ def calibrate(
     can be (``calibration.replicates``), the smallest family-wise p-value so far beside it; a
     calibration that decides early closes it short of that total."""
     cands = list(cands)
-    steps = calibration.steps
     groups = refit_groups(result, recording, cands, estimates, calibration, anchor)
     period = 1.0 / fundamental_frequency(result.fitted_gaw(recording), recording.fps)
     own, _, _ = prepare(
@@ -238,7 +237,7 @@ def calibrate(
     with _progress_bar(progress, calibration.replicates, recording.name) as bar:
 
         def statistics(rows, nulls):  # ``nulls``: how many of the rows are null recordings
-            out = run_statistics(groups, rows, steps, n_cands)
+            out = run_statistics(groups, rows, calibration, n_cands)
             if bar is not None:
                 bar.update(min(nulls, bar.total - bar.n))
             return out
@@ -453,7 +452,7 @@ def _interval(jobs, source, observed, y, k, cand, spreads, calibration, n_cands)
     rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
     values = []
     for i in range(0, len(rows), size):
-        _, _, yb = run_statistics([from_y], rows[i : i + size], calibration.steps, n_cands)
+        _, _, yb = run_statistics([from_y], rows[i : i + size], calibration, n_cands)
         values += [_values(jobs, row, cand) for row in yb[k]]
     estimate, values = values[0], values[1 : n + 1]
     return estimate, {

@@ -115,6 +115,10 @@ class Calibration(eqx.Module):
         steps: Levenberg-Marquardt steps of each candidate's refits in the statistic (a few
             suffice: they start at the fit's optimum, the null recordings' truth); the
             control's refit takes twice as many.
+        jacobian_every: the refits compute their Jacobian (forward mode, most of a step's
+            cost) at the first step and every ``jacobian_every``-th after it, and update
+            it by Broyden's secant rule from the steps' trials in between (1: at every
+            step).
         variability: simulate the recording's cycle-to-cycle variability in the null
             recordings (else white noise only).
         seed: seed of the null recordings' noise and variability.
@@ -160,6 +164,7 @@ class Calibration(eqx.Module):
     interval: float = eqx.field(default=0.95, converter=float)
     interval_replicates: int = eqx.field(default=15, converter=int)
     steps: int = eqx.field(default=10, converter=int)
+    jacobian_every: int = eqx.field(default=3, converter=int)
     variability: bool = True
     seed: int = eqx.field(default=0, converter=int)
     pool: int = eqx.field(default=0, converter=int)
@@ -172,6 +177,11 @@ class Calibration(eqx.Module):
             raise ValueError(
                 "Calibration: control_starts and control_spread must be >= 0, got "
                 f"{self.control_starts}, {self.control_spread}"
+            )
+        if self.jacobian_every < 1 or self.steps < 0:
+            raise ValueError(
+                "Calibration: jacobian_every must be >= 1 and steps >= 0, got "
+                f"{self.jacobian_every}, {self.steps}"
             )
         if self.pool < 0:
             raise ValueError(f"Calibration: pool must be >= 0, got {self.pool}")

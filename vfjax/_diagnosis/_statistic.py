@@ -5,10 +5,11 @@ On every recording the same statistic is computed by the same compiled programs
 (`_statistics`, one per group of candidates that share a warm-up, `refit_groups`): the
 control refit of the fitted parameters, then each candidate's refit from the control's
 optimum and from the same fixed starts (`refit_jobs`; `Calibration.steps`
-Levenberg-Marquardt steps each). A candidate's refit never ends worse than its control: the
-control's optimum, with the effect off, is one of its points. The refits' falls are
-standardised as F-test p-values (`f_p_values`) and compared across candidates with a step
-of max-T (`family_p_values`).
+Levenberg-Marquardt steps each, whose Jacobian is computed at every
+`Calibration.jacobian_every`-th step and updated by secants between). A candidate's refit
+never ends worse than its control: the control's optimum, with the effect off, is one of its
+points. The refits' falls are standardised as F-test p-values (`f_p_values`) and compared
+across candidates with a step of max-T (`family_p_values`).
 """
 
 import dataclasses
@@ -52,19 +53,21 @@ class _Jobs:
     restarts: jax.Array  # (1 + control_starts, names) or (0, names)
 
 
-def _refit(problem, y0, basis, steps: int):
+def _refit(problem, y0, basis, steps: int, jacobian_every: int):
     """`levenberg_marquardt` on ``problem``'s residual, with its Jacobian
-    (`Problem.residual_and_jacobian`): (point, NMSE)."""
-    return levenberg_marquardt(problem.residual, y0, basis, steps, problem.residual_and_jacobian)
+    (`Problem.residual_and_jacobian`, at every ``jacobian_every``-th step): (point, NMSE)."""
+    return levenberg_marquardt(
+        problem.residual, y0, basis, steps, problem.residual_and_jacobian, jacobian_every
+    )
 
 
 @program
-def _refit_control(problem, y0, free, basis, steps: int):
+def _refit_control(problem, y0, free, basis, steps: int, jacobian_every: int):
     """The control's refit on the problem's own recording: (point, NMSE)."""
-    return _refit(dataclasses.replace(problem, free=free), y0, basis, steps)
+    return _refit(dataclasses.replace(problem, free=free), y0, basis, steps, jacobian_every)
 
 
-def settled(jobs: _Jobs, steps: int) -> _Jobs:
+def settled(jobs: _Jobs, steps: int, jacobian_every: int) -> _Jobs:
     """``jobs`` starting from the control refitted on the recording in the group's own
     sampling (``2 * steps`` steps from the fit's point), for a group whose warm-up is longer
     than the fit's. There the fit's point is not the control's optimum (a longer warm-up
@@ -72,12 +75,16 @@ def settled(jobs: _Jobs, steps: int) -> _Jobs:
     rather than its 20 ms, has 2.4 times its error until refitted), and refits from it
     within a few steps would differ by where they stop."""
     basis = _control_basis(jobs.bases)
-    y, _ = _refit_control(jobs.problem, jobs.y0, jobs.frees[0], basis, 2 * int(steps))
+    y, _ = _refit_control(
+        jobs.problem, jobs.y0, jobs.frees[0], basis, 2 * int(steps), int(jacobian_every)
+    )
     return dataclasses.replace(jobs, y0=y)
 
 
 @program
-def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: int):
+def _statistics(
+    problem, y0, starts, frees, bases, pool, restarts, data, steps: int, jacobian_every: int
+):
     """For each recording (rows of ``data``): the control's NMSE and point, and each job's
     NMSE (never above the control's) and point. The control takes ``2 * steps`` steps (one
     refit beside the many jobs: a control left short of its optimum would hand every
@@ -113,6 +120,9 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
     control_basis, job_bases = bases
     kept = jnp.sum(control_basis, axis=0) > 0
 
+    def refit(problem, y, basis, steps):
+        return _refit(problem, y, basis, steps, jacobian_every)
+
     def one(measured):
         p = dataclasses.replace(problem, measured=measured)
         pc = dataclasses.replace(p, free=frees[0])
@@ -121,7 +131,7 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
             moved, moved_cost = jax.vmap(pc.start)(y0[:n_names] + restarts)
             moved_cost = jnp.where(jnp.isfinite(moved_cost), moved_cost, jnp.inf)
             begin = jnp.stack([y0, moved[jnp.argmin(moved_cost)]])
-        ycs, ccs = jax.vmap(lambda y: _refit(pc, y, control_basis, 2 * steps))(begin)
+        ycs, ccs = jax.vmap(lambda y: refit(pc, y, control_basis, 2 * steps))(begin)
         yc, cc = ycs[jnp.argmin(ccs)], jnp.min(ccs)
         if entries.shape[0]:
 
@@ -139,14 +149,14 @@ def _statistics(problem, y0, starts, frees, bases, pool, restarts, data, steps: 
                 mine = jnp.where(entry_owner == owner, profiled_cost, jnp.inf)
                 pick = jnp.argsort(mine)[jnp.maximum(rank, 0)]
                 y = jnp.where(rank >= 0, chosen[pick], y)
-            return _refit(pj, y, basis, steps)
+            return refit(pj, y, basis, steps)
 
         yj, cj = jax.vmap(job)(starts, frees[1:], job_bases, ranks, job_owner)
 
         def control_from(cand):
             mine = jnp.where(job_owner == cand, cj, jnp.inf)
             best = jnp.argmin(mine)
-            y, cost = _refit(pc, jnp.where(kept, yj[best], y0), control_basis, steps)
+            y, cost = refit(pc, jnp.where(kept, yj[best], y0), control_basis, steps)
             return y, jnp.where(jnp.isfinite(mine[best]), cost, jnp.inf)
 
         def padding(cand):
@@ -292,7 +302,9 @@ def refit_groups(
             pool_owner=jnp.concatenate([g.pool_owner, jnp.full(more, -1)]),
             rank=jnp.concatenate([g.rank, jnp.full(pad, -1)]),
         )
-        out.append(g if w == result.sampling.warmup else settled(g, calibration.steps))
+        if w != result.sampling.warmup:
+            g = settled(g, calibration.steps, calibration.jacobian_every)
+        out.append(g)
     return out
 
 
@@ -445,12 +457,12 @@ def _members(owner, n_cands: int) -> np.ndarray:
     return np.array(found + [-1] * (n_cands - len(found)))
 
 
-def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
+def run_statistics(groups, data: np.ndarray, calibration: Calibration, n_cands: int):
     """The statistic of every group's refits on the recordings ``data`` (rows): each
     candidate's control NMSE (recordings, candidates): its group's, or the first group's
     (the fit's sampling) where that is lower; each candidate's best refit NMSE (recordings,
     candidates) and the points of those refits (per candidate, an array (recordings, n_y)
-    in its group's coordinates)."""
+    in its group's coordinates). ``calibration``: the refits' steps and Jacobians."""
     controls = np.full((len(data), n_cands), np.nan)
     best_cost = np.full((len(data), n_cands), np.inf)
     best_y = [None] * n_cands
@@ -478,7 +490,9 @@ def run_statistics(groups, data: np.ndarray, steps: int, n_cands: int):
         # devices
         out = side_by_side(
             [
-                lambda d=d, rows=rows, a=args: _statistics(*placed((*a, rows), d), int(steps))
+                lambda d=d, rows=rows, a=args: _statistics(
+                    *placed((*a, rows), d), calibration.steps, calibration.jacobian_every
+                )
                 for d, rows in zip(devices, parts)
             ]
         )

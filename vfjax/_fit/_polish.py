@@ -37,13 +37,15 @@ _DAMPING_START = 1.0  # the first step tries 1e-4 and 10
 _DAMPING_RISE = 1e4  # after a step that no trial improves
 
 
-def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None):
+def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None, jacobian_every: int = 1):
     """``steps`` Levenberg-Marquardt steps on ``residual`` from ``y0`` within the span of the
     rows of ``basis`` (unit vectors of the free coordinates; zero rows are ignored), keeping
     the best point: (point, its sum of squares). ``jacobian``: a function of a point and
     the basis that returns the residual there and its derivatives along the rows as
     columns (such as `Problem.residual_and_jacobian`); by default `jacobian_columns` of
-    ``residual``.
+    ``residual``. ``jacobian_every``: the Jacobian is computed at the first step and at
+    every ``jacobian_every``-th after it; the steps between update it by Broyden's rank-one
+    secant rule from each trial's residual (1: a Jacobian at every step).
 
     The best is kept over every evaluation, the Jacobian's residual at each step's point
     included: near a grazing closure the model is discontinuous, and the same point can
@@ -54,14 +56,16 @@ def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None):
 
     A fixed number of steps (a `lax.scan`), so that a batch of refits runs in lock step and the
     solve traces inside any vmap. Each step: the Jacobian's columns by forward mode (one batched
-    jvp, which also gives the residual) and damped Gauss-Newton steps with Marquardt's scaling
-    at two dampings five decades apart about the current one (`_DAMPING_TRIALS`: 1e-4 times it
-    and 10 times it; the first step tries 1e-4 and 10), evaluated one after the other; the
-    better one is taken if it improves, and its damping becomes the current one; if neither
-    improves, the damping rises by `_DAMPING_RISE`. The Jacobian costs most of a step. The first
-    step's damping of 10 steps short of a jump that a nearly undamped step crosses (a grazing
-    closure: one more cycle reaching contact); the smaller trial, nearly Gauss-Newton, lets
-    every step go far along a flat valley of the error.
+    jvp, which also gives the residual) or their secant update, and damped Gauss-Newton steps
+    with Marquardt's scaling at two dampings five decades apart about the current one
+    (`_DAMPING_TRIALS`: 1e-4 times it and 10 times it; the first step tries 1e-4 and 10),
+    evaluated one after the other; the better one is taken if it improves, and its damping
+    becomes the current one; if neither improves, the damping rises by `_DAMPING_RISE`. The
+    Jacobian costs most of a step (a forward tangent through the integrator costs about twice
+    the residual: six columns about seven residuals). The first step's damping of 10 steps
+    short of a jump that a nearly undamped step crosses (a grazing closure: one more cycle
+    reaching contact); the smaller trial, nearly Gauss-Newton, lets every step go far along a
+    flat valley of the error.
 
     The trials run in a `lax.map`, one after the other: vmapped, they run no faster on a CPU
     (a batch of 16 recordings of the calibration's statistic on the shared syn_gap's first
@@ -71,18 +75,27 @@ def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None):
     if steps < 1:
         c0 = jnp.sum(residual(y0) ** 2)
         return y0, jnp.where(jnp.isfinite(c0), c0, jnp.inf)
+    if jacobian_every < 1:
+        raise ValueError(f"jacobian_every must be >= 1, got {jacobian_every}")
     ratios = jnp.asarray(_DAMPING_TRIALS, y0.dtype)
     if jacobian is None:
 
         def jacobian(y, basis):
             return jacobian_columns(residual, y, basis)
 
-    def step(carry, _):
-        y, damping, y_best, c_best = carry
-        # the residual at y comes with its Jacobian: no simulation of its own
-        r, j = jacobian(y, basis)
-        c = jnp.sum(r**2)
-        c = jnp.where(jnp.isfinite(c), c, jnp.inf)
+    def finite(cost):
+        return jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+
+    def step(carry, index):
+        y, r, j, damping, y_best, c_best = carry
+        if jacobian_every > 1:
+            # the step index is the same for every member of a batch: a real branch under vmap
+            r, j = jax.lax.cond(
+                index % jacobian_every == 0, lambda: jacobian(y, basis), lambda: (r, j)
+            )
+        else:
+            r, j = jacobian(y, basis)
+        c = finite(jnp.sum(r**2))
         y_best, c_best = _better((y, c), (y_best, c_best))
         h = j.T @ j
         g = j.T @ r
@@ -90,22 +103,41 @@ def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None):
         d = jnp.where(d > 0, d, 1.0)  # a zero column (a padding direction) does not move
 
         def trial(level):
-            point = y + basis.T @ -jnp.linalg.solve(h + level * jnp.diag(d), g)
-            cost = jnp.sum(residual(point) ** 2)
-            return point, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+            move = -jnp.linalg.solve(h + level * jnp.diag(d), g)
+            moved = residual(y + basis.T @ move)
+            return move, moved, finite(jnp.sum(moved**2))
 
         levels = damping * ratios
-        points, costs = jax.lax.map(trial, levels)  # see the docstring
+        moves, moved, costs = jax.lax.map(trial, levels)  # see the docstring
+        if jacobian_every > 1:
+            # Broyden's secant update from each trial (the model is smooth between its
+            # switches; a trial across one can spoil the update until the next Jacobian,
+            # never the best point kept)
+            for k in range(len(_DAMPING_TRIALS)):
+                s = moves[k]
+                ss = jnp.sum(s**2)
+                ok = jnp.isfinite(costs[k]) & (ss > 0)
+                update = jnp.outer(moved[k] - r - j @ s, s) / jnp.where(ok, ss, 1.0)
+                j = jnp.where(ok, j + update, j)
         best = jnp.argmin(costs)
         better = costs[best] < c
-        y = jnp.where(better, points[best], y)
+        y = jnp.where(better, y + basis.T @ moves[best], y)
+        r = jnp.where(better, moved[best], r)
         c = jnp.where(better, costs[best], c)
         y_best, c_best = _better((y, c), (y_best, c_best))
         damping = jnp.clip(jnp.where(better, levels[best], damping * _DAMPING_RISE), 1e-12, 1e12)
-        return (y, damping, y_best, c_best), None
+        return (y, r, j, damping, y_best, c_best), None
 
-    init = (y0, jnp.asarray(_DAMPING_START, y0.dtype), y0, jnp.asarray(jnp.inf, y0.dtype))
-    (_, _, y, c), _ = jax.lax.scan(step, init, None, length=steps)
+    r0, j0 = jax.eval_shape(jacobian, y0, basis)
+    init = (
+        y0,
+        jnp.zeros(r0.shape, r0.dtype),
+        jnp.zeros(j0.shape, j0.dtype),
+        jnp.asarray(_DAMPING_START, y0.dtype),
+        y0,
+        jnp.asarray(jnp.inf, y0.dtype),
+    )
+    (*_, y, c), _ = jax.lax.scan(step, init, jnp.arange(steps))
     return y, c
 
 
