@@ -156,9 +156,10 @@ def _problem_of(model, rec, sampling, period):
     return prepare(model, rec, ("S", "K"), sampling, period, None)[0]
 
 
-def test_the_statistics_solver_finds_scipys_least_squares():
-    # a decaying oscillation fitted in three of its four parameters (the fourth held, as a
-    # candidate's parameters are in the control refit)
+def _decaying_oscillation():
+    """A decaying oscillation to fit in three of its four parameters (the fourth held, as a
+    candidate's parameters are in the control refit): (residual, start, basis, scipy's
+    least-squares solution of the three)."""
     t = np.linspace(0, 1, 80)
     rng = np.random.default_rng(0)
     y = 1.3 * np.exp(-2.1 * t) * np.sin(7.0 * t + 0.4) + 0.01 * rng.standard_normal(t.size)
@@ -168,8 +169,13 @@ def test_the_statistics_solver_finds_scipys_least_squares():
 
     start = np.array([1.0, 1.5, 6.5, 0.4])
     basis = jnp.eye(4)[:3]  # p[3] held
-    found, cost = jax.jit(lambda s: levenberg_marquardt(residual, s, basis, 30))(start)
     truth = least_squares(lambda q: np.asarray(residual(np.r_[q, 0.4])), start[:3], xtol=1e-14)
+    return residual, start, basis, truth
+
+
+def test_the_statistics_solver_finds_scipys_least_squares():
+    residual, start, basis, truth = _decaying_oscillation()
+    found, cost = jax.jit(lambda s: levenberg_marquardt(residual, s, basis, 30))(start)
     np.testing.assert_allclose(found[:3], truth.x, rtol=1e-6)
     assert found[3] == 0.4
     assert float(cost) == pytest.approx(2 * truth.cost, rel=1e-9)
@@ -179,16 +185,7 @@ def test_the_statistics_solver_with_secant_updates_finds_scipys_least_squares():
     # as above, with the Jacobian computed at steps 0, 3, 6, ... and Broyden's secant
     # updates between: the same optimum within ten steps; its Jacobian is computed three
     # times in seven steps, also for a vmapped batch (a real branch, not both sides masked)
-    t = np.linspace(0, 1, 80)
-    rng = np.random.default_rng(0)
-    y = 1.3 * np.exp(-2.1 * t) * np.sin(7.0 * t + 0.4) + 0.01 * rng.standard_normal(t.size)
-
-    def residual(p):
-        return p[0] * jnp.exp(-p[1] * t) * jnp.sin(p[2] * t + p[3]) - y
-
-    start = np.array([1.0, 1.5, 6.5, 0.4])
-    basis = jnp.eye(4)[:3]
-    truth = least_squares(lambda q: np.asarray(residual(np.r_[q, 0.4])), start[:3], xtol=1e-14)
+    residual, start, basis, truth = _decaying_oscillation()
     found, cost = jax.jit(lambda s: levenberg_marquardt(residual, s, basis, 10, None, 3))(start)
     np.testing.assert_allclose(found[:3], truth.x, rtol=1e-6)
     assert float(cost) == pytest.approx(2 * truth.cost, rel=1e-9)
