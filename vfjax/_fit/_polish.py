@@ -104,11 +104,12 @@ def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None, jacobian
 
         def trial(level):
             move = -jnp.linalg.solve(h + level * jnp.diag(d), g)
-            moved = residual(y + basis.T @ move)
-            return move, moved, finite(jnp.sum(moved**2))
+            point = y + basis.T @ move
+            moved = residual(point)
+            return point, move, moved, finite(jnp.sum(moved**2))
 
         levels = damping * ratios
-        moves, moved, costs = jax.lax.map(trial, levels)  # see the docstring
+        points, moves, moved, costs = jax.lax.map(trial, levels)  # see the docstring
         if jacobian_every > 1:
             # Broyden's secant update from each trial (the model is smooth between its
             # switches; a trial across one can spoil the update until the next Jacobian,
@@ -121,7 +122,7 @@ def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None, jacobian
                 j = jnp.where(ok, j + update, j)
         best = jnp.argmin(costs)
         better = costs[best] < c
-        y = jnp.where(better, y + basis.T @ moves[best], y)
+        y = jnp.where(better, points[best], y)
         r = jnp.where(better, moved[best], r)
         c = jnp.where(better, costs[best], c)
         y_best, c_best = _better((y, c), (y_best, c_best))
