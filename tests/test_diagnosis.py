@@ -383,8 +383,20 @@ def _hidden_case(case):
     return rec, result, vfjax.diagnose(result, rec), truth
 
 
+#: cases the diagnosis is known to miss, with why
+_MISSED = {
+    "PressureModulation": "a modulation that switches closures, as syn_tremor's: the first fit "
+    "stops at NMSE 58 %, above the recording's mean as a constant (50 %), and the refit with "
+    "the modulation misses its basin (60 %), so nothing is named (benchmarks/README.md, 'A "
+    "modulation that switches closures')",
+}
+
+
 def _marks(case):
-    return [] if case in DEFAULT else [pytest.mark.slow]
+    marks = [] if case in DEFAULT else [pytest.mark.slow]
+    if case in _MISSED:
+        marks.append(pytest.mark.xfail(strict=True, reason=_MISSED[case]))
+    return marks
 
 
 @pytest.mark.xdist_group("diagnosis")
