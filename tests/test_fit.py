@@ -62,9 +62,9 @@ def test_polish_never_worse_than_the_swarm(n1_fit):
     _, _, result = n1_fit
     assert np.all(np.diff(result.pso_trace) <= 0)
     assert len(result.lm_trace) == 2 and result.lm_trace[1] <= result.lm_trace[0]
-    # the polish's start is the swarm's best, its NMSE computed again at the fit's steps
-    # (the swarm's are twice as long: 4 % apart on this noiseless recording's NMSE of 3e-4)
-    assert result.lm_trace[0] == pytest.approx(result.pso_trace[-1], rel=0.1)
+    # the swarm's best, re-evaluated as the polish's start (same point, another code path:
+    # equal to rounding)
+    assert result.lm_trace[0] <= result.pso_trace[-1] * (1 + 1e-6)
     assert result.nmse == result.lm_trace[-1]
     assert result.optimistix_result in ("successful", "max_steps_reached")
 
@@ -233,49 +233,6 @@ def test_swarm_cost_is_the_best_shift_of_direct_simulations():
     y, start_cost = eqx.filter_jit(lambda p, z: p.start(z))(problem, z)
     r = eqx.filter_jit(lambda p, y: p.residual(y))(problem, y)
     assert float(np.sum(r**2)) == pytest.approx(float(start_cost), rel=1e-5)
-
-
-def test_the_swarm_simulates_with_longer_steps():
-    """The swarm ranks its particles on simulations with twice the fit's steps (within 1/8000
-    s; the fit's own for a model with a fast relaxing state): its cost of a point is the
-    profile of a fit sampled with half the steps a frame, and lies within 1 % of the cost at
-    the fit's steps."""
-    from vfjax._fit._problem import swarm_sampling
-    from vfjax.terms import SourceTractInertance
-
-    truth = vfjax.preset("N3")
-    rec = _recording(truth, t_start=0.0237, noise_px=1.0)
-    problem = _problem(_start(truth), rec)  # 4 steps a frame at 4 kHz
-    assert float(problem.swarm_grid.h) == pytest.approx(1 / 8000, rel=1e-12)
-    z = np.array([0.1, -0.2, 0.0, 0.0])
-    swarm_cost, _ = eqx.filter_jit(lambda p, z: p.swarm_cost(z))(problem, z)
-    fine = eqx.filter_jit(lambda p, z: p.profile(z))(problem, z)[0]
-    assert float(swarm_cost) == pytest.approx(float(fine), rel=0.01)
-    assert float(swarm_cost) != float(fine)
-    from vfjax._fit._problem import fit_sampling, prepare
-
-    sampling, period = fit_sampling(rec, 0.02, 2)
-    halved = prepare(_start(truth), rec, ("S", "K", "C_f"), sampling, period, None)[0]
-    assert float(swarm_cost) == float(eqx.filter_jit(lambda p, z: p.profile(z))(halved, z)[0])
-    # steps a frame: halved, rounded up, within 1/8000 s; a factor of 1 keeps them
-    model = _start(truth)
-    for fps, substeps, factor, swarm in [
-        (4000, 4, 2, 2),
-        (2000, 8, 2, 4),
-        (3000, 6, 2, 3),
-        (8000, 4, 2, 2),
-        (8000, 4, 4, 1),
-        (4000, 2, 2, 2),
-        (4000, 8, 3, 3),
-        (4000, 4, 1, 4),
-    ]:
-        s = vfjax.Sampling(fps, 201, substeps=substeps)
-        assert swarm_sampling(model, s, factor).substeps == swarm, (fps, substeps, factor)
-    # a state relaxing faster than once per longer step keeps the fit's steps
-    s = vfjax.Sampling(4000, 201, substeps=4)
-    assert swarm_sampling(model.with_effect(SourceTractInertance(I_t=0.005)), s, 2).substeps == 4
-    with pytest.raises(ValueError, match="step_factor"):
-        vfjax.Swarm(step_factor=0)
 
 
 def test_lm_linearisation_is_the_residuals_jacobian():
@@ -494,9 +451,9 @@ def test_a_first_fit_that_matches_the_start_up_is_made_again_after_a_longer_warm
     later = vfjax.settling(first, tremor)
     assert later.warmup == pytest.approx(2 * vfjax.SETTLING_WARMUP)
     # its error moves 0.2 s later by under a twentieth of what the start-up's did (keys 0, 1:
-    # 1.0e-4 against 9.0e-3 and 7.1e-3; about the noise floor, 7.7e-5, which it exceeds
-    # with some keys: a periodic model drifts against a modulated recording it misfits by
-    # 18 %)
+    # -4.7e-5 and 1.06e-4 against 9.0e-3 and 8.5e-3; about the noise floor, 7.8e-5, which it
+    # exceeds with key 1: a periodic model drifts against a modulated recording that it
+    # misfits by 18 %)
     assert later.nmse - later.fit_nmse < 0.05 * (start_up.nmse - start_up.fit_nmse), later
     assert first.status == "successful" and first.nmse < 0.25
     both = vfjax.fit_recordings([gap, tremor], **options)

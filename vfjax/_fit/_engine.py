@@ -258,8 +258,8 @@ def polish_slices(batch, active, found, points, from_point, polish: Polish | Non
 # computes alone (a vmapped batch rounds differently from a batch of one). Padding fits
 # (``active`` False) are skipped. Where a fit starts (its swarm's best or an earlier stage's
 # point) is data: one program serves the first polish and every later stage of a length
-# bucket. The swarm's best comes with its polish point (`Problem.swarm_cost`: its profiled
-# shift and S); its NMSE is computed again at the fit's steps, which the swarm's are not.
+# bucket. The swarm's best comes with its polish point and cost (`Problem.swarm_cost`), so
+# that only an earlier stage's point is simulated before the solve.
 @program
 def _polish_batch(batch, active, found, points, from_point, polish: Polish | None):
     """Each fit's polish from its swarm's best ``found`` (its polish points and NMSEs) or,
@@ -268,13 +268,17 @@ def _polish_batch(batch, active, found, points, from_point, polish: Polish | Non
     solver's best point, its NMSE, steps and result."""
 
     def one(args):
-        p, live, (y_found, _), y_given, given = args
+        p, live, (y_found, cost_found), y_given, given = args
+
+        def swarm_start():
+            return y_found, cost_found
+
+        def point_start():
+            cost = jnp.sum(p.residual(y_given) ** 2)
+            return y_given, jnp.where(jnp.isfinite(cost), cost, jnp.inf)
 
         def solve():
-            # the start's NMSE at the fit's steps (the swarm's cost is at its own)
-            y = jnp.where(given, y_given, y_found)
-            cost = jnp.sum(p.residual(y) ** 2)
-            cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf)
+            y, cost = jax.lax.cond(given, point_start, swarm_start)
             if polish is None:
                 return y, cost
             return (y, cost, *_polish_one(p, y, cost, polish))
@@ -446,7 +450,7 @@ def fit_many(
         )
     per_fold = two_folds and all(with_folds)
     prepared = [
-        prepare(m, r, params, s, period, b, h, size, per_fold, swarm.step_factor)
+        prepare(m, r, params, s, period, b, h, size, per_fold)
         for m, r, (s, period), h, b in zip(models, recordings, samplings, hold, bounds)
     ]
     if len({p.fit_s for p, _, _ in prepared}) > 1:
@@ -477,18 +481,7 @@ def fit_many(
         windows.append(
             stacked(
                 [
-                    prepare(
-                        m,
-                        r.crop(0.0, n / r.fps),
-                        params,
-                        s,
-                        t,
-                        b,
-                        h,
-                        small,
-                        per_fold,
-                        swarm.step_factor,
-                    )[0]
+                    prepare(m, r.crop(0.0, n / r.fps), params, s, t, b, h, small, per_fold)[0]
                     for m, r, (s, t), h, b, n in parts
                 ]
             )[1]

@@ -17,11 +17,6 @@ class Swarm(eqx.Module):
         social: pull towards the swarm's best, c2.
         max_speed: velocity clamp, as a fraction of each coordinate's range.
         boundary: "reflect" (mirror at the bound, velocity reversed) or "clip".
-        step_factor: the swarm's simulations take RK4 steps this many times as long as the
-            fit's (the steps a frame divided by it, rounded up), within 1/8000 s and what
-            the model's stateful terms integrate stably; 1: the fit's steps. The swarm only
-            ranks its particles: the polish, every reported NMSE and the fitted GAW use the
-            fit's steps.
     """
 
     size: int = eqx.field(default=48, converter=int)
@@ -32,14 +27,12 @@ class Swarm(eqx.Module):
     social: float = eqx.field(default=1.49618, converter=float)
     max_speed: float = eqx.field(default=0.25, converter=float)
     boundary: str = "reflect"
-    step_factor: int = eqx.field(default=2, converter=int)
 
     def __check_init__(self):
-        if self.size < 1 or self.iterations < 0 or self.chunk < 1 or self.step_factor < 1:
+        if self.size < 1 or self.iterations < 0 or self.chunk < 1:
             raise ValueError(
-                "Swarm: size, chunk and step_factor must be >= 1 and iterations >= 0, got "
-                f"size={self.size}, iterations={self.iterations}, chunk={self.chunk}, "
-                f"step_factor={self.step_factor}"
+                "Swarm: size and chunk must be >= 1 and iterations >= 0, got "
+                f"size={self.size}, iterations={self.iterations}, chunk={self.chunk}"
             )
         if self.boundary not in ("reflect", "clip"):
             raise ValueError(f"Swarm: boundary must be 'reflect' or 'clip', got {self.boundary!r}")
@@ -49,9 +42,7 @@ class Swarm(eqx.Module):
         return {f: getattr(self, f) for f in self.__dataclass_fields__}
 
     def program(self) -> "Swarm":
-        """The settings that shape the compiled swarm: iterations run as data, and the
-        step factor lives in each fit's `Problem` (its swarm's sampling), so both are set
-        aside here (0 and 1)."""
+        """The settings that shape the compiled swarm (iterations run as data)."""
         return Swarm(
             self.size,
             0,
@@ -61,7 +52,6 @@ class Swarm(eqx.Module):
             self.social,
             self.max_speed,
             self.boundary,
-            step_factor=1,
         )
 
 

@@ -15,7 +15,6 @@ values, so that fits of any of them (and S) share one compiled program per model
 and length bucket.
 """
 
-import dataclasses
 import math
 
 import equinox as eqx
@@ -38,8 +37,6 @@ from .._sampling import Sampling, length_bucket
 from ..descriptors import fundamental_frequency
 from ..model import VocalFoldModel
 from ..recording import Recording
-from ..terms.base import AbstractStatefulTerm
-from ._options import Swarm
 
 #: Default search box per parameter, as factors of the starting value.
 DEFAULT_FACTORS = {
@@ -85,10 +82,6 @@ WARMUP = 0.02
 SHIFT_CYCLES = 1.25
 SHIFT_STEP = 0.005
 _SHIFTS_PER_FRAME = 2  # the swarm tries time shifts half a frame apart
-#: The longest RK4 step of a swarm's simulations (s): twice that of the default sampling at
-#: 4 kHz (`vfjax.Sampling`). Its costs then lie within about 0.5 % of those at the fit's step
-#: on the presets, and rank the particles alike (benchmarks/README.md).
-SWARM_MAX_STEP = 1.0 / 8000.0
 _AREA_TO_PX_SCALE = {"mm2": 1.0, "cm2": 0.01}  # S that turns model mm² per mm² into the unit
 
 
@@ -120,7 +113,6 @@ class Problem(eqx.Module):
 
     model: VocalFoldModel
     grid: SampledGrid
-    swarm_grid: SampledGrid  # the swarm's sampling: a longer step (`swarm_sampling`)
     measured: jax.Array  # (frames bucket,) the GAW, zero beyond the recording
     counted: jax.Array  # (frames bucket,) 1 for a frame of the recording, 0 for padding
     reference: jax.Array  # (n_params,) starting values of the non-S fitted parameters
@@ -195,20 +187,18 @@ class Problem(eqx.Module):
         s = mg / jnp.maximum(gg, 1e-300)
         return jnp.clip(s, self.s_bounds[0], self.s_bounds[1])
 
-    def profile(self, z_phys, grid: SampledGrid | None = None):
+    def profile(self, z_phys):
         """Best cost over the grid of time shifts, S projected for each; returns (cost, shift
-        as a fraction of T0, projected S). ``grid``: the sampling to simulate on (default:
-        the fit's own; the swarm's is `swarm_grid`).
+        as a fraction of T0, projected S).
 
         One simulation serves every shift. The shifts are half a frame apart, so every
         shifted frame time lies on one regular grid of half-frame spacing: the observed area
         is read from the dense output once on that grid, and the products that the
         projected S and the cost need at every shift are correlations of the measured GAW
         with the grid's even and odd samples. (Observation terms act pointwise in time.)"""
-        grid = self.grid if grid is None else grid
         model = self.model_at(jnp.concatenate([z_phys, jnp.zeros(1)])).set(S=1.0)
-        integration = integrate_window_single(model, grid, n_rows=self.n_rows)
-        sim = sample_window(model, grid, 0.0, integration, n_out=self.n_out)
+        integration = integrate_window_single(model, self.grid, n_rows=self.n_rows)
+        sim = sample_window(model, self.grid, 0.0, integration, n_out=self.n_out)
         ok = sim.complete
         q, n = _SHIFTS_PER_FRAME, self.n_shifts
         length = q * (-(-n // q) + self.n_out - 1)  # whole rows of q samples
@@ -245,10 +235,9 @@ class Problem(eqx.Module):
         return jnp.where(ok, costs[i], jnp.inf), shifts[i] / self.period, s[i]
 
     def swarm_cost(self, z_phys):
-        """The swarm's cost of a point of the physical parameters (shift and S profiled,
-        simulated on `swarm_grid`), and the rest of its polish point (as `start`'s: the
-        shift and log(S / S_ref))."""
-        y, cost = self.start(z_phys, self.swarm_grid)
+        """The swarm's cost of a point of the physical parameters (shift and S profiled),
+        and the rest of its polish point (`start`'s: the shift and log(S / S_ref))."""
+        y, cost = self.start(z_phys)
         return cost, y[z_phys.shape[0] :]
 
     @property
@@ -315,11 +304,10 @@ class Problem(eqx.Module):
             basis, moved
         )
 
-    def start(self, z_phys, grid: SampledGrid | None = None):
+    def start(self, z_phys):
         """Swarm point (physical parameters) -> polish point (with its best grid shift and,
-        if fitted, log(S / S_ref) of the projected S) and its cost (``grid``: as for
-        `profile`)."""
-        cost, shift, s = self.profile(z_phys, grid)
+        if fitted, log(S / S_ref) of the projected S) and its cost."""
+        cost, shift, s = self.profile(z_phys)
         y = jnp.concatenate([z_phys, shift[None]])
         if self.fit_s:
             y = jnp.concatenate([y, jnp.log(s / self.s_reference)[None]])
@@ -458,35 +446,11 @@ def fit_sampling(
     return sampling, period
 
 
-def swarm_sampling(model: VocalFoldModel, sampling: Sampling, factor: int) -> Sampling:
-    """The sampling of a swarm's simulations in a fit sampled by ``sampling``: RK4 steps
-    ``factor`` times as long (steps a frame rounded up), no longer than `SWARM_MAX_STEP`;
-    the fit's own where ``model`` has a stateful term that relaxes faster than once per
-    longer step (``max_rate``: RK4 would damp its state otherwise than at the fit's step)."""
-    k = min(int(factor), math.floor(SWARM_MAX_STEP / sampling.step + 1e-9))
-    coarse = dataclasses.replace(sampling, substeps=-(-sampling.substeps // max(k, 1)))
-    rate = max([t.max_rate for t in model.terms if isinstance(t, AbstractStatefulTerm)] + [0.0])
-    return coarse if k > 1 and rate * coarse.step <= 1.0 else sampling
-
-
-def prepare(
-    model,
-    recording,
-    params,
-    sampling,
-    period,
-    bounds,
-    held=(),
-    size=None,
-    per_fold=False,
-    swarm_factor=None,
-):
+def prepare(model, recording, params, sampling, period, bounds, held=(), size=None, per_fold=False):
     """A `Problem` for fitting ``params`` of ``model`` to ``recording`` and its search box
     (lower, upper) in the search coordinates. ``size``: the program's static sizes
     (`program_size`; default: those of ``sampling``). ``per_fold``: fit the recording's
-    per-fold areas (`Recording.folds`) as well as the total. ``swarm_factor``: the swarm
-    simulates with steps this many times the fit's (`swarm_sampling`; None: the default
-    `Swarm`'s)."""
+    per-fold areas (`Recording.folds`) as well as the total."""
     params = tuple(params)
     model.check_step(sampling.step)
     units = model.parameter_units()
@@ -537,9 +501,6 @@ def prepare(
     problem = Problem(
         model=model,
         grid=sampled_grid(sampling),
-        swarm_grid=sampled_grid(
-            swarm_sampling(model, sampling, swarm_factor or Swarm().step_factor)
-        ),
         measured=jnp.asarray(measured),
         counted=jnp.asarray(np.arange(n_out) < recording.n_frames, dtype=float),
         reference=jnp.asarray([values[n] for n in names]),

@@ -38,11 +38,9 @@ class FitResult:
             time-shift range).
         bounds: the search box of each fitted parameter, [low, high] in its unit.
         swarm: the swarm's settings.
-        pso_trace: best NMSE after each swarm iteration (index 0: the initial swarm), as
-            the swarm simulates (`Swarm.step_factor`); for a long recording, the NMSE over
-            its first cycles (`fit_many`).
-        lm_trace: NMSE at the polish's start (the swarm's best at the fit's steps) and at
-            its end.
+        pso_trace: best NMSE after each swarm iteration (index 0: the initial swarm); for
+            a long recording, the NMSE over its first cycles (`fit_many`).
+        lm_trace: NMSE at the polish's start and at its end.
         trace_times: wall time (s since the fit began) of each entry of ``pso_trace``
             followed by each entry of ``lm_trace`` (iterations within a compiled chunk are
             spread evenly over the chunk's time).
