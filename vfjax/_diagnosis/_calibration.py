@@ -361,7 +361,7 @@ def calibrate(
                 # null recordings were searched alike: its basin is the evidence)
                 y = _point_of(jobs.problem, found)
             values[k], intervals[k] = _interval(
-                jobs, source, observed, y, k, cand, spreads, calibration, n_cands
+                jobs, source, observed, y, k, cand, calibration, n_cands
             )
     # cycle-to-cycle variability, where no candidate is significant (a missing effect's
     # misfit trades with the per-cycle factors: the extended fit's diagnosis tests it); its
@@ -428,7 +428,7 @@ def bootstrap_interval(
     return (centre - half, centre + half)
 
 
-def _interval(jobs, source, observed, y, k, cand, spreads, calibration, n_cands) -> tuple:
+def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple:
     """Candidate ``k``'s parameters refined from the point ``y`` of the recording's refit
     (in its group ``jobs``), and their interval: ``({parameter: value}, {parameter: (low,
     high)})`` (see `calibrate`).
@@ -437,9 +437,24 @@ def _interval(jobs, source, observed, y, k, cand, spreads, calibration, n_cands)
     the statistic's lattice, can leave a replicate far from its optimum within the fixed
     steps and inflate the spread); the recording itself rides in the first batch, and its
     refit from ``y`` is the refined estimate (`bootstrap_interval`). The bootstrap
-    recordings are simulated in the group's sampling."""
+    recordings are simulated in the group's sampling, with the white noise and the
+    cycle-to-cycle variability that the recording shows about that truth's GAW: not those
+    of the null recordings, which the fitted model's misfit sizes, the missing effect's
+    included (a large misfit is taken up there as variability at the largest spreads, and
+    replicates of the effect's model drawn with it are refitted far from their truth)."""
     model, shift = jobs.problem.unpack(jnp.asarray(y))
-    model = model.with_term(source.model.terms[-2]).with_term(source.model.terms[-1])
+    truth = _NullSource(
+        jobs.problem,
+        model,
+        shift,
+        source.recording,
+        source.period,
+        int(source.rng.integers(2**32)),
+    )
+    spreads = NO_SPREADS
+    if calibration.variability:
+        clean = truth.clean[: source.recording.n_frames]
+        spreads = variability_size(truth, clean, variability_kind(truth, clean))
     size, n = calibration.batch, calibration.interval_replicates
     own = (np.asarray(jobs.owner) == k)[:, None]
     from_y = dataclasses.replace(
@@ -447,7 +462,7 @@ def _interval(jobs, source, observed, y, k, cand, spreads, calibration, n_cands)
         starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts),
         rank=jnp.where(own[:, 0], -1, jobs.rank),
     )
-    drawn = source.draw(n, spreads, model=model, shift=shift, problem=jobs.problem)
+    drawn = truth.draw(n, spreads)
     rows = np.concatenate([observed, drawn])
     rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
     values = []
