@@ -222,16 +222,13 @@ def calibrate(
     source = _NullSource(
         own, result.model, result.time_shift, recording, period, calibration.seed, latest_start
     )
-    fitted, noise = source.clean[: recording.n_frames], source.noise_sd
+    noise = source.noise_sd
     size = calibration.batch
     observed = np.asarray(own.measured)[None]
     n_fitted = len(result.params) + 1
     dofs = _dofs(cands)
     n_cands = len(cands)
-    if calibration.variability:
-        spreads = variability_size(source, fitted, variability_kind(source, fitted))
-    else:
-        spreads = NO_SPREADS
+    spreads = _spreads(source, calibration)
 
     # the bar is closed however the calibration ends (an interrupt, a failed simulation)
     with _progress_bar(progress, calibration.replicates, recording.name) as bar:
@@ -384,6 +381,16 @@ def calibrate(
     )
 
 
+def _spreads(source: _NullSource, calibration: Calibration):
+    """The cycle-to-cycle variability of recordings drawn from ``source``: the spreads
+    whose draws show the recording's about the source's GAW (`variability_kind`, sized by
+    `variability_size`), or none where ``calibration.variability`` is off."""
+    if not calibration.variability:
+        return NO_SPREADS
+    clean = source.clean[: source.recording.n_frames]
+    return variability_size(source, clean, variability_kind(source, clean))
+
+
 def _progress_bar(show: bool | None, total: int, name: str):
     """A progress bar of ``total`` null recordings of the recording ``name`` on stderr
     where ``show`` (where it is None: on a terminal), as a context that closes it; else a
@@ -451,10 +458,7 @@ def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple
         source.period,
         int(source.rng.integers(2**32)),
     )
-    spreads = NO_SPREADS
-    if calibration.variability:
-        clean = truth.clean[: source.recording.n_frames]
-        spreads = variability_size(truth, clean, variability_kind(truth, clean))
+    spreads = _spreads(truth, calibration)
     size, n = calibration.batch, calibration.interval_replicates
     own = (np.asarray(jobs.owner) == k)[:, None]
     from_y = dataclasses.replace(
