@@ -19,8 +19,11 @@ def cache_folder() -> pathlib.Path:
 #: recently are removed. A bounded cache also makes JAX lock the folder for every read and
 #: write, so processes running side by side never read a program half written.
 CACHE_MAX_BYTES = 2 * 1024**3
-#: Programs that compile faster than this (s) are not cached (small array operations).
-CACHE_MIN_COMPILE_S = 0.2
+#: Programs that compile faster than this (s) are not cached. Every program is: a diagnosis
+#: also compiles some two hundred small ones (array operations between its large programs),
+#: and a later process loads them faster than it compiles them (a warm `vfjax diagnose` of
+#: the shared syn_base, benchmarks/README.md).
+CACHE_MIN_COMPILE_S = 0.0
 
 
 def use_compilation_cache(folder=None) -> pathlib.Path | None:
