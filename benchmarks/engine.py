@@ -6,12 +6,16 @@ b) recordings of five lengths (101 to 2001 frames) and three frame rates diagnos
    process (`vfjax.investigate`, one round): compilations per recording, counted from JAX's
    compile events, and the total time;
 c) `fit_many` of 16 recordings against a loop of `fit` over them (fits per minute), one
-   compiled fit's wall time, and the swarm's and the polish's share of each.
+   compiled fit's wall time, and the swarm's and the polish's share of each;
+d) one calibrated diagnosis (`vfjax.diagnose` of the first fit, default settings) of the
+   shared syn_gap and syn_base, timed apart from the first fit, in a fresh process with a
+   cold compilation cache and then warm, 2 CPU devices as the command line uses.
 
-Run: python benchmarks/engine.py [--only a|b|c] [--quick]
+Run: python benchmarks/engine.py [--only a|b|c|d] [--quick]
 """
 
 import argparse
+import json
 import os
 import pathlib
 import subprocess
@@ -64,6 +68,51 @@ def part_a():
         print(f"    verdict: {verdict2}")
         if verdict1 != verdict2:
             print(f"    cold verdict differs: {verdict1}")
+
+
+#: Part d's fresh process: the command line's devices and compilation cache (argv[2]), the
+#: first fit of the recording argv[1] as `vfjax diagnose` makes it, then one diagnosis.
+_ONE_DIAGNOSIS = """
+import json, sys, time
+from vfjax.cli import use_compilation_cache, use_cpu_cores
+use_cpu_cores()
+use_compilation_cache(sys.argv[2])
+import vfjax
+t0 = time.perf_counter()
+rec = vfjax.load_recording(sys.argv[1])
+first = vfjax.fit_recording(rec, vfjax.initial_model(rec))
+t1 = time.perf_counter()
+d = vfjax.diagnose(first, rec)
+t2 = time.perf_counter()
+print(json.dumps({"fit": t1 - t0, "diagnosis": t2 - t1, "needed": d.needed,
+                  "null": d.calibrated.replicates, "p": min(f.p_value for f in d.refits.values())}))
+"""
+
+
+def part_d():
+    print("d) one calibrated diagnosis of the first fit, fresh process (s; cold cache, then warm)")
+    for name in ("syn_gap", "syn_base"):
+        path = SHARED / "data" / "synthetic" / f"{name}.csv"
+        with tempfile.TemporaryDirectory() as cache:
+            for label in ("cold", "warm"):
+                env = {k: v for k, v in os.environ.items() if k != "VFJAX_NO_CACHE"}
+                t0 = time.perf_counter()
+                proc = subprocess.run(
+                    [sys.executable, "-c", _ONE_DIAGNOSIS, str(path), cache],
+                    capture_output=True,
+                    text=True,
+                    env=env,
+                )
+                wall = time.perf_counter() - t0
+                if proc.returncode:
+                    print(f"  {name} {label}: exit {proc.returncode}: {proc.stderr[-300:]}")
+                    continue
+                r = json.loads(proc.stdout.strip().splitlines()[-1])
+                print(
+                    f"  {name} {label}: diagnosis {r['diagnosis']:.1f} s (first fit "
+                    f"{r['fit']:.1f} s, process {wall:.1f} s); needed {r['needed']} against "
+                    f"{r['null']} null recordings, smallest p {r['p']:.3g}"
+                )
 
 
 def _counter():
@@ -151,7 +200,7 @@ def part_c():
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--only", choices=("a", "b", "c"))
+    ap.add_argument("--only", choices=("a", "b", "c", "d"))
     ap.add_argument("--quick", action="store_true", help="part b on four recordings")
     ap.add_argument("--cores", type=int, default=None, help="CPU devices (default: every core)")
     args = ap.parse_args()
@@ -163,6 +212,8 @@ def main():
         part_b(args.quick)
     if args.only in (None, "c"):
         part_c()
+    if args.only in (None, "d"):
+        part_d()
 
 
 if __name__ == "__main__":
