@@ -9,7 +9,8 @@ c) `fit_many` of 16 recordings against a loop of `fit` over them (fits per minut
    compiled fit's wall time, and the swarm's and the polish's share of each;
 d) one calibrated diagnosis (`vfjax.diagnose` of the first fit, default settings) of the
    shared syn_gap and syn_base, timed apart from the first fit, in a fresh process with a
-   cold compilation cache and then warm, 2 CPU devices as the command line uses.
+   cold compilation cache and then warm, with the CPU devices of --cores (default: every
+   core, as the command line uses).
 
 Run: python benchmarks/engine.py [--only a|b|c|d] [--quick]
 """
@@ -33,11 +34,18 @@ SHARED = pathlib.Path(__file__).resolve().parents[2] / "shared"
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 
 
-def cli_diagnose(name: str, cache: str) -> tuple[float, int, str]:
+def fresh_env(cache: str, devices: int) -> dict:
+    """The environment of a fresh process with the compilation cache in ``cache`` and
+    ``devices`` CPU devices, as the command line reads them."""
+    env = {**os.environ, "VFJAX_CACHE_DIR": cache, "VFJAX_CORES": str(devices)}
+    env.pop("VFJAX_NO_CACHE", None)
+    return env
+
+
+def cli_diagnose(name: str, cache: str, devices: int) -> tuple[float, int, str]:
     """Wall time, exit code and verdict line of `vfjax diagnose` in a fresh process."""
     with tempfile.TemporaryDirectory() as out:
-        env = {**os.environ, "VFJAX_CACHE_DIR": cache}
-        env.pop("VFJAX_NO_CACHE", None)
+        env = fresh_env(cache, devices)
         t0 = time.perf_counter()
         proc = subprocess.run(
             [
@@ -58,25 +66,26 @@ def cli_diagnose(name: str, cache: str) -> tuple[float, int, str]:
     return wall, proc.returncode, verdicts[-1] if verdicts else proc.stderr[-300:]
 
 
-def part_a():
+def part_a(devices: int):
     print("a) vfjax diagnose from a fresh process (wall s; cold cache, then warm)")
     for name in ("syn_gap", "syn_base"):
         with tempfile.TemporaryDirectory() as cache:
-            cold, rc1, verdict1 = cli_diagnose(name, cache)
-            warm, rc2, verdict2 = cli_diagnose(name, cache)
+            cold, rc1, verdict1 = cli_diagnose(name, cache, devices)
+            warm, rc2, verdict2 = cli_diagnose(name, cache, devices)
         print(f"  {name}: cold {cold:.1f} s (exit {rc1}), warm {warm:.1f} s (exit {rc2})")
         print(f"    verdict: {verdict2}")
         if verdict1 != verdict2:
             print(f"    cold verdict differs: {verdict1}")
 
 
-#: Part d's fresh process: the command line's devices and compilation cache (argv[2]), the
-#: first fit of the recording argv[1] as `vfjax diagnose` makes it, then one diagnosis.
+#: Part d's fresh process: the devices and compilation cache of `fresh_env`, as the command
+#: line takes them, the first fit of the recording argv[1] as `vfjax diagnose` makes it, then
+#: one diagnosis.
 _ONE_DIAGNOSIS = """
-import json, sys, time
+import json, os, sys, time
 from vfjax.cli import use_compilation_cache, use_cpu_cores
-use_cpu_cores()
-use_compilation_cache(sys.argv[2])
+use_cpu_cores(int(os.environ["VFJAX_CORES"]))
+use_compilation_cache()
 import vfjax
 t0 = time.perf_counter()
 rec = vfjax.load_recording(sys.argv[1])
@@ -89,19 +98,18 @@ print(json.dumps({"fit": t1 - t0, "diagnosis": t2 - t1, "needed": d.needed,
 """
 
 
-def part_d():
+def part_d(devices: int):
     print("d) one calibrated diagnosis of the first fit, fresh process (s; cold cache, then warm)")
     for name in ("syn_gap", "syn_base"):
         path = SHARED / "data" / "synthetic" / f"{name}.csv"
         with tempfile.TemporaryDirectory() as cache:
             for label in ("cold", "warm"):
-                env = {k: v for k, v in os.environ.items() if k != "VFJAX_NO_CACHE"}
                 t0 = time.perf_counter()
                 proc = subprocess.run(
-                    [sys.executable, "-c", _ONE_DIAGNOSIS, str(path), cache],
+                    [sys.executable, "-c", _ONE_DIAGNOSIS, str(path)],
                     capture_output=True,
                     text=True,
-                    env=env,
+                    env=fresh_env(cache, devices),
                 )
                 wall = time.perf_counter() - t0
                 if proc.returncode:
@@ -207,13 +215,13 @@ def main():
     devices = use_cpu_cores(args.cores)  # as the command line does
     print(f"vfjax {vfjax.__version__}, jax {jax.__version__}, {devices} CPU devices")
     if args.only in (None, "a"):
-        part_a()
+        part_a(devices)
     if args.only in (None, "b"):
         part_b(args.quick)
     if args.only in (None, "c"):
         part_c()
     if args.only in (None, "d"):
-        part_d()
+        part_d(devices)
 
 
 if __name__ == "__main__":
