@@ -136,12 +136,10 @@ class _NullSource:
         self.noise_sd = noise_level(recording.area, self.clean[: recording.n_frames])
         self.rng = np.random.default_rng(seed)
 
-    def draw(self, n: int, spreads=NO_SPREADS, model=None, shift=None, problem=None) -> np.ndarray:
+    def draw(self, n: int, spreads=NO_SPREADS) -> np.ndarray:
         """``n`` recordings' areas (n, frames bucket), zero beyond the recording, with the
-        cycle-to-cycle variability ``spreads`` (`Spreads`); of ``model`` (with the source's
-        jitter terms last) at ``shift`` (s) in the sampling of ``problem`` (a `Problem` of
-        the same recording) if given."""
-        return self.draw_with(*self.jitter(n, *spreads), model, shift, problem)
+        cycle-to-cycle variability ``spreads`` (`Spreads`)."""
+        return self.draw_with(*self.jitter(n, *spreads))
 
     def jitter(self, n: int, timing_sd: float, amplitude_sd: float, period_sd: float = 0.0):
         """``n`` rows of timing offsets (s) and amplitude factors, one per slot: offsets of
@@ -157,15 +155,10 @@ class _NullSource:
             offsets = offsets + np.cumsum(steps, axis=1)
         return offsets, factors
 
-    def draw_with(
-        self, offsets, factors, model=None, shift=None, problem=None, noise_sd=None
-    ) -> np.ndarray:
+    def draw_with(self, offsets, factors, noise_sd=None) -> np.ndarray:
         """`draw` with the given rows of timing offsets (s) and amplitude factors (and white
         noise of deviation ``noise_sd`` where given, else the source's)."""
-        simulator = self.simulator if problem is None else _Simulator(problem)
         n = offsets.shape[0]
-        base = self.model if model is None else model
-        shift = self.shift if shift is None else jnp.asarray(shift)
         # simulated _DRAW_BATCH at a time: one compiled program for every count
         pad = -n % _DRAW_BATCH
         offsets = np.concatenate([offsets, np.zeros((pad, self.n_slots))])
@@ -174,9 +167,9 @@ class _NullSource:
             [
                 np.asarray(
                     _jittered_gaws(
-                        simulator,
-                        base,
-                        shift,
+                        self.simulator,
+                        self.model,
+                        self.shift,
                         jnp.asarray(offsets[i : i + _DRAW_BATCH]),
                         jnp.asarray(factors[i : i + _DRAW_BATCH]),
                     )
