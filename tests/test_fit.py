@@ -399,22 +399,34 @@ def test_a_fit_in_a_batch_equals_the_fit_alone(three_in_a_batch):
 
 
 _ON_TWO_DEVICES = """
-import json, sys
+import collections, json, logging, re, sys
 import jax
 jax.config.update("jax_num_cpu_devices", 2)
+jax.config.update("jax_log_compiles", True)
+compiled = collections.Counter()
+class Count(logging.Handler):
+    def emit(self, record):
+        text = record.getMessage()
+        found = re.match(r"Finished XLA compilation of jit\\((\\w+?)(_stored)?\\)", text)
+        if found:
+            compiled[found.group(1)] += 1
+logging.getLogger("jax").addHandler(Count())
 sys.path.insert(0, {tests!r})
 import test_fit
 assert len(jax.devices()) == 2
-print(json.dumps(test_fit._numbers(test_fit._three_in_a_batch()[1])))
+numbers = test_fit._numbers(test_fit._three_in_a_batch()[1])
+print(json.dumps([numbers, compiled]))
 """
 
 
 @_WITH_THREE_IN_A_BATCH
 def test_a_batch_split_over_two_devices_equals_it_on_one(three_in_a_batch):
     """The batch of three (four fits with its padding) in a process of two CPU devices, as
-    the command line runs: each device fits its two, and every number equals the batch's on
-    one device to the last bit (the same one-device programs on either device; a program
-    split over the devices by XLA, `jax.shard_map`, rounds otherwise)."""
+    the command line runs: two groups of two fits side by side, each through the same
+    compiled programs, and every number equals the batch's on one device to the last bit
+    (the same one-device programs for either group; a program split over the devices by
+    XLA, `jax.shard_map`, rounds otherwise). The swarm's chunk and the polish compile once
+    each, not once per device."""
     import subprocess
     import sys
 
@@ -426,8 +438,9 @@ def test_a_batch_split_over_two_devices_equals_it_on_one(three_in_a_batch):
         timeout=300,
     )
     assert run.returncode == 0, run.stderr[-2000:]
-    on_two = json.loads(run.stdout.strip().splitlines()[-1])
+    on_two, compiled = json.loads(run.stdout.strip().splitlines()[-1])
     assert on_two == _numbers(three_in_a_batch[1])
+    assert compiled["_swarm_chunk"] == 1 and compiled["_polish_batch"] == 1, compiled
 
 
 def test_a_first_fit_that_matches_the_start_up_is_made_again_after_a_longer_warm_up(

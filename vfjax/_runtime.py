@@ -55,8 +55,10 @@ def use_compilation_cache(folder=None) -> pathlib.Path | None:
 
 def use_cpu_cores(cores: int | None = None) -> int:
     """Give JAX's CPU backend one device per core (``cores``, default every core of the
-    machine), so that the fits split their batches among them. Must run before JAX
-    computes anything; afterwards it changes nothing and returns the devices JAX has."""
+    machine), so that the fits split their batches into as many groups, computed side by
+    side in threads of their own (through one compiled copy of each program: see
+    `vfjax.fit_many`). Must run before JAX computes anything; afterwards it changes nothing
+    and returns the devices JAX has."""
     import jax
 
     cores = (os.cpu_count() or 1) if cores is None else int(cores)

@@ -22,7 +22,7 @@ from scipy import stats
 from scipy.stats import qmc
 
 from .._fit import FitResult, search_range
-from .._fit._engine import placed, side_by_side
+from .._fit._engine import group_devices, placed, side_by_side
 from .._fit._polish import levenberg_marquardt
 from .._fit._problem import prepare, start_point
 from .._programs import program
@@ -91,7 +91,7 @@ def _statistics(
     candidate a fall of its own) from ``y0`` and, where ``restarts`` has rows, from the best
     of ``y0`` moved by each row with its time shift and S found afresh
     (`Calibration.control_starts`), and the jobs without a start of their own continue
-    from its optimum. (`run_statistics` gives each device its share of the recordings.)
+    from its optimum. (`run_statistics` splits the recordings into shares, one per device.)
 
     The control is then refitted again (``steps`` steps) from each candidate's best refit
     with its effect switched off (its other coordinates kept), and takes the best of those
@@ -177,11 +177,11 @@ def _statistics(
 
 
 def _shares(n_recordings: int) -> list:
-    """The devices among which ``n_recordings`` recordings are split in equal shares of
-    consecutive rows: the default backend's devices where the count divides among them,
-    else the first one."""
-    devices = jax.devices()
-    return devices if n_recordings % len(devices) == 0 else devices[:1]
+    """The devices (`group_devices`) of the shares into which ``n_recordings`` recordings
+    are split, equal shares of consecutive rows: one share per device of the default
+    backend where the count divides among them, else one share."""
+    n = len(jax.devices())
+    return group_devices(n if n_recordings % n == 0 else 1)
 
 
 def _start_values(cand: Candidate, model, whole_circle: bool = False) -> list[dict]:
@@ -485,9 +485,8 @@ def run_statistics(groups, data: np.ndarray, calibration: Calibration, n_cands: 
             ),
             jobs.restarts,
         )
-        # each device refits its share of the recordings with the one-device program, in
-        # a thread of its own: a recording's statistic has the same bits on any number of
-        # devices
+        # each share of the recordings refitted with the one-device program, in a thread of
+        # its own: a recording's statistic has the same bits on any number of devices
         out = side_by_side(
             [
                 lambda d=d, rows=rows, a=args: _statistics(

@@ -7,20 +7,22 @@ simulation), in compiled chunks of iterations (progress is reported between chun
 Levenberg-Marquardt with the best point kept) from each fit's swarm optimum, the fits one
 after the other, with no host round trip per step.
 
-On several devices (CPU devices: `jax_num_cpu_devices`) a batch's fits are split among them
-in equal groups (`_device_groups`), each device running the one-device programs on its group,
-and the polish's slices are dealt to the devices in turn; the devices run side by side, and a
-fit computes the same bits on any number of them. (A program split over devices by XLA's SPMD
-partitioner, as with `jax.shard_map`, rounds otherwise than the same program on one device,
-and a swarm is chaotic: such a split can end a fit in another basin.)
+On several devices (CPU devices: `jax_num_cpu_devices`) a batch's fits are split into as many
+equal groups (`_device_groups`), which run side by side, one thread each, through the
+one-device programs, and the polish's slices are dealt to the groups in turn; a fit computes
+the same bits on any number of them. On the CPU every group runs on the first device
+(`group_devices`): a CPU executable computes in the thread that calls it, so one compiled copy
+of each program serves every core. (A program split over devices by XLA's SPMD partitioner,
+as with `jax.shard_map`, rounds otherwise than the same program on one device, and a swarm is
+chaotic: such a split can end a fit in another basin.)
 
 What decides the compiled programs: the model's structure (its terms), the parameters it fits
 beyond `PROGRAM_PARAMETERS`, the batch size over the devices, rounded up to a power of two
 (`batch_bucket`; the padding fits are skipped), the length bucket (`vfjax.Sampling`,
-`length_bucket`), the swarm's size and chunk and the polish; each device compiles its own
-copy. Everything else (the recordings, frame rates, warm-ups, time-shift ranges, starting
-values, bounds, iteration counts, which of the program's parameters are fitted, and in linear
-or log coordinates) is data. A fit's result does not depend on the batch it ran in, nor on the
+`length_bucket`), the swarm's size and chunk and the polish. Everything else (the
+recordings, frame rates, warm-ups, time-shift ranges, starting values, bounds, iteration
+counts, which of the program's parameters are fitted, and in linear or log coordinates) is
+data. A fit's result does not depend on the batch it ran in, nor on the
 number of devices.
 """
 
@@ -149,11 +151,20 @@ def _device_groups(n_batch: int) -> list:
     devices (a power of two of them) as leave every group at least two fits (see
     `batch_bucket`). Each device runs the one-device programs on its group, so a fit
     computes the same bits on any number of devices."""
-    devices = jax.devices()
     n = 1
-    while 2 * n <= len(devices) and n_batch // (2 * n) >= 2:
+    while 2 * n <= len(jax.devices()) and n_batch // (2 * n) >= 2:
         n *= 2
-    return devices[:n]
+    return group_devices(n)
+
+
+def group_devices(n: int) -> list:
+    """The devices on which ``n`` groups of work compute side by side, one thread each
+    (`side_by_side`): on the CPU, the default device ``n`` times, so that every group runs
+    through one compiled copy of each program (a CPU executable computes in the thread that
+    calls it, and the threads of one device compute at once); on other backends the first
+    ``n`` devices."""
+    devices = jax.devices()
+    return [devices[0]] * n if devices[0].platform == "cpu" else devices[:n]
 
 
 def placed(tree, device):
@@ -164,7 +175,8 @@ def placed(tree, device):
 
 def _split(tree, devices):
     """``tree``'s array leaves cut along their leading axis into ``len(devices)`` equal
-    consecutive parts, the k-th placed on ``devices[k]`` (its other leaves as they are)."""
+    consecutive parts, the k-th placed on ``devices[k]`` (a device may be listed more than
+    once; its other leaves as they are)."""
     n = len(devices)
 
     def part(k):
@@ -185,9 +197,10 @@ def _joined(parts):
 
 
 def side_by_side(calls: Sequence[Callable]) -> list:
-    """Each of ``calls`` (no arguments; each computes on its own device) run to its end,
-    in one thread each where there are several (a CPU device computes in the thread that
-    calls it; XLA releases the GIL), and their outputs in order."""
+    """Each of ``calls`` (no arguments) run to its end, in one thread each where there are
+    several (a CPU executable computes in the thread that calls it, and XLA releases the
+    GIL: the calls compute at once, on one device or several), and their outputs in
+    order."""
 
     def finished(call):
         return jax.block_until_ready(call())
@@ -240,8 +253,8 @@ def polish_slices(batch, active, found, points, from_point, polish: Polish | Non
             return x[start : start + POLISH_SLICE] if isinstance(x, np.ndarray) else x
 
         slices.append(jax.tree.map(cut, host))
-    # the slices dealt to the devices in turn, each device polishing its own in order
-    devices = jax.devices()[: len(slices)]
+    # the slices dealt to the groups in turn, each group polishing its own in order
+    devices = group_devices(min(len(jax.devices()), len(slices)))
     n_dev = len(devices)
 
     def polish_on(k):
@@ -362,7 +375,8 @@ def fit_many(
     structure: the same terms; e.g. several starting points for one recording). Fit i's
     result depends only on its model, recording, hold, restarts and key
     ``jax.random.fold_in(key, i)``, not on the rest of the batch nor on the number of
-    devices (a batch of at least four fits is split among the devices, see the module).
+    devices (a batch of at least four fits is split into one group per device, see the
+    module).
 
     Arguments:
         model: the starting model(s), with every non-fitted parameter set (e.g.
