@@ -520,7 +520,7 @@ def fit_many(
             total=swarm.iterations + 1 + (1 if polish else 0), desc=f"fit {name}", leave=False
         )
 
-    # Stage 1: the swarm, in chunks, each device's group of fits in a thread of its own
+    # Stage 1: the swarm, in chunks, each group of fits in a thread of its own
     t0 = time.perf_counter()
     devices = _device_groups(n_fits + pad)
     width = lanes((n_fits + pad) // len(devices), swarm.size)
