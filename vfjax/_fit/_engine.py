@@ -22,8 +22,7 @@ beyond `PROGRAM_PARAMETERS`, the batch size over the devices, rounded up to a po
 `length_bucket`), the swarm's size and chunk and the polish. Everything else (the
 recordings, frame rates, warm-ups, time-shift ranges, starting values, bounds, iteration
 counts, which of the program's parameters are fitted, and in linear or log coordinates) is
-data. A fit's result does not depend on the batch it ran in, nor on the
-number of devices.
+data. A fit's result does not depend on the batch it ran in, nor on the number of devices.
 """
 
 import dataclasses
@@ -146,11 +145,11 @@ def _swarm_chunk(batch, active, lowers, uppers, states, live, swarm: Swarm, widt
 
 
 def _device_groups(n_batch: int) -> list:
-    """The devices among which a batch of ``n_batch`` fits (a power of two, `batch_bucket`)
-    is split, an equal group of consecutive fits to each: as many of the default backend's
-    devices (a power of two of them) as leave every group at least two fits (see
-    `batch_bucket`). Each device runs the one-device programs on its group, so a fit
-    computes the same bits on any number of devices."""
+    """The devices (`group_devices`) of the groups into which a batch of ``n_batch`` fits
+    (a power of two, `batch_bucket`) is split, equal groups of consecutive fits: as many
+    groups as the default backend has devices (a power of two of them) while every group
+    keeps at least two fits (see `batch_bucket`). Every group runs the one-device programs,
+    so a fit computes the same bits on any number of devices."""
     n = 1
     while 2 * n <= len(jax.devices()) and n_batch // (2 * n) >= 2:
         n *= 2
