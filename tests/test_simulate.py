@@ -286,3 +286,93 @@ def test_the_swarms_single_precision_window_follows_the_double_one(term):
     nmse = np.sum((a - b) ** 2, axis=1) / np.sum(a**2, axis=1)
     assert np.all(nmse < 1e-9), nmse
     assert np.all(nmse > 0)  # it is single precision: not the double-precision bits
+
+
+@pytest.mark.parametrize("term", [None, "tract"])
+def test_a_small_batch_integrates_the_same_motion_step_by_step(term):
+    """`integrate_window(small_batch=True)` (the swarm's layout: each iteration a program of
+    its own, its row written by the loop around it) integrates the motion of the chunked loop:
+    in double precision, the same nodes and phases, times and states within 1e-12 of them
+    (XLA compiles the iteration's arithmetic otherwise there, so not the same bits), for
+    members that close and members that never close, with and without a term's internal
+    state, and the same state where the kept rows begin and at the end."""
+    from vfjax._integrate import integrate_window, sampled_grid, window_size
+
+    base = vfjax.preset("N1")
+    if term == "tract":
+        base = base.with_term(vfjax.SourceTractInertance(I_t=0.0074))
+    scales = jnp.asarray([0.8, 0.95, 1.0, 1.05, 1.2, 1.5])
+    batch = jax.vmap(lambda s: base.set(K=base.params()["K"] * s, P_s=base.params()["P_s"] * s))(
+        scales
+    )
+    sampling = vfjax.Sampling(fps=FPS, n_frames=201, substeps=4, warmup=0.02)
+    grid = sampled_grid(sampling)
+    _, n_rows = window_size(sampling)
+
+    def integrate(small):
+        one = lambda m: integrate_window(m, grid, n_rows=n_rows, small_batch=small)  # noqa: E731
+        return jax.jit(jax.vmap(one))(batch)
+
+    (begin, end, rows), (begin_s, end_s, rows_s) = integrate(False), integrate(True)
+    t, x, v, code, z = rows
+    t_s, x_s, v_s, code_s, z_s = rows_s
+    np.testing.assert_array_equal(np.asarray(code), np.asarray(code_s))
+    closes = np.any(np.asarray(code) == phases.CLOSED, axis=1)
+    assert closes.any() and (term is not None or not closes.all())
+    np.testing.assert_allclose(np.asarray(t_s), np.asarray(t), rtol=1e-12, atol=0)
+    scale = float(np.max(np.abs(np.asarray(x))))
+    np.testing.assert_allclose(np.asarray(x_s), np.asarray(x), rtol=0, atol=1e-12 * scale)
+    speed = float(np.max(np.abs(np.asarray(v))))
+    np.testing.assert_allclose(np.asarray(v_s), np.asarray(v), rtol=0, atol=1e-10 * speed)
+    assert jax.tree.structure(z) == jax.tree.structure(z_s) and len(jax.tree.leaves(z)) == (
+        0 if term is None else 1
+    )
+    for a, b in zip(jax.tree.leaves(z), jax.tree.leaves(z_s)):
+        size = float(np.max(np.abs(np.asarray(a))))
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=0, atol=1e-10 * size)
+    for a, b in ((begin, begin_s), (end, end_s)):
+        np.testing.assert_array_equal(np.asarray(a.step), np.asarray(b.step))
+        np.testing.assert_array_equal(np.asarray(a.flags), np.asarray(b.flags))
+        np.testing.assert_array_equal(np.asarray(a.events), np.asarray(b.events))
+        np.testing.assert_allclose(np.asarray(b.t), np.asarray(a.t), rtol=1e-12, atol=0)
+
+
+def test_roots_solved_apart_are_the_stacked_roots_and_solve_the_cubic():
+    """`hermite_roots` of problems given apart equals `hermite_root` of the same problems
+    stacked, and each root solves its cubic: against a bisection to machine precision (in
+    numpy) for random cubics with a sign change over the step, a step starting on the surface
+    (its trivial root at 0 divided out) and a step starting at rest."""
+    from vfjax._hermite import hermite, hermite_root, hermite_roots
+
+    rng = np.random.default_rng(3)
+    n = 64
+    y0, y1 = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    d0, d1 = rng.uniform(-2, 2, n), rng.uniform(-2, 2, n)
+    target = np.where(rng.uniform(size=n) < 0.5, np.minimum(y0, y1), np.maximum(y0, y1))
+    target = target + (0.5 - rng.uniform(size=n)) * np.abs(y1 - y0)  # between y0 and y1
+    target[:4] = y0[:4]  # on the surface at theta = 0: its return crossing
+    d0[:4] = np.where(y1[:4] > y0[:4], -1.5, 1.5)  # leaves the surface, comes back
+    d0[4:8] = 0.0  # at rest
+    first = (y0, d0, y1, d1, target)
+    second = tuple(np.roll(a, 7) for a in first)
+    apart = hermite_roots(first, second)
+    stacked = hermite_root(*(jnp.stack([a, b]) for a, b in zip(first, second)))
+    for root, row in zip(apart, stacked):
+        np.testing.assert_allclose(np.asarray(root), np.asarray(row), rtol=1e-14, atol=1e-15)
+
+    def bisect(y0, d0, y1, d1, target):
+        g = lambda th: np.asarray(hermite(th, y0, d0, y1, d1)) - target  # noqa: E731
+        lo, hi = np.zeros(n), np.ones(n)
+        # the return crossing of a step that starts on the surface: search past its start
+        lo = np.where(g(lo) == 0, 1e-9, lo)
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            same = np.sign(g(mid)) == np.sign(g(lo))
+            lo, hi = np.where(same, mid, lo), np.where(same, hi, mid)
+        return 0.5 * (lo + hi), np.sign(g(np.full(n, 1e-9))) != np.sign(g(np.ones(n)))
+
+    for root, problem in zip(apart, (first, second)):
+        truth, bracketed = bisect(*problem)
+        ok = bracketed & (np.abs(np.asarray(hermite(truth, *problem[:4])) - problem[4]) < 1e-12)
+        assert ok.sum() > n // 2
+        np.testing.assert_allclose(np.asarray(root)[ok], truth[ok], rtol=0, atol=1e-9)

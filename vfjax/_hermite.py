@@ -43,7 +43,8 @@ def _poly_slope(c, theta):
 def hermite_root(y0, d0, y1, d1, target, iterations: int = 6):
     """Root in [0, 1] of ``hermite(theta) = target``, given a sign change over [0, 1].
 
-    Arguments may carry a leading axis to solve several independent problems at once.
+    Arguments may carry a leading axis to solve several independent problems at once
+    (`hermite_roots` solves problems given apart, without stacking them).
 
     When the step starts exactly on the surface (a just-located event), the trivial root at
     theta = 0 is divided out, so a trajectory that moves off the surface and comes back within
@@ -62,6 +63,33 @@ def hermite_root(y0, d0, y1, d1, target, iterations: int = 6):
     the simulator's time at batch 64. A convergence test (a while loop) costs more than it
     saves: under `vmap` it runs for the slowest member at every step.
     """
+    (root,) = hermite_roots((y0, d0, y1, d1, target), iterations=iterations)
+    return root
+
+
+def hermite_roots(*problems, iterations: int = 6):
+    """`hermite_root` of each of ``problems`` (tuples ``(y0, d0, y1, d1, target)``), solved
+    side by side in one Newton loop; returns a tuple of roots.
+
+    The problems stay separate arrays rather than one stacked array: in a loop's body on a
+    CPU, XLA runs kernels one after another only while each array they touch is small (see
+    `vfjax._integrate._events._alone`), and a stack of two doubles it."""
+    setups = [_newton_setup(*problem) for problem in problems]
+
+    def newton(_, states):
+        return tuple(_newton_step(setup, state) for setup, state in zip(setups, states))
+
+    # A loop, not unrolled Python: XLA's CPU fusion would otherwise copy the iterations into
+    # every consumer of the root (several times slower in the integrator).
+    start = tuple(
+        (theta, jnp.zeros_like(theta), jnp.ones_like(theta)) for _, _, _, theta, _ in setups
+    )
+    states = jax.lax.fori_loop(0, iterations, newton, start)
+    return tuple(_newton_finish(setup, state) for setup, state in zip(setups, states))
+
+
+def _newton_setup(y0, d0, y1, d1, target):
+    """The cubic's live and stopped coefficients, its deflated form and the first guess."""
     g0 = y0 - target
     live = (g0, d0, 3.0 * (y1 - y0) - 2.0 * d0 - d1, 2.0 * (y0 - y1) + d0 + d1)
     c = jax.lax.stop_gradient(live)
@@ -77,24 +105,27 @@ def hermite_root(y0, d0, y1, d1, target, iterations: int = 6):
     # root of the secant's; from the secant's own (far too early when g(0) is small) Newton
     # would first halve its distance to the root for several iterations.
     theta = jnp.where(p[1] == 0, jnp.sqrt(theta), theta)
+    return live, p, p_lo, theta, immediate
 
-    def newton(_, state):
-        # Newton inside the bracket [lo, hi]; a step that leaves it is replaced by bisection.
-        theta, lo, hi = state
-        g = _poly(p, theta)
-        same = jnp.sign(g) == jnp.sign(p_lo)
-        lo = jnp.where(same, theta, lo)
-        hi = jnp.where(same, hi, theta)
-        step = theta - _safe_div(g, _poly_slope(p, theta))
-        inside = (step >= lo) & (step <= hi)
-        theta = jnp.where(g == 0, theta, jnp.where(inside, step, 0.5 * (lo + hi)))
-        return theta, lo, hi
 
-    # A loop, not unrolled Python: XLA's CPU fusion would otherwise copy the iterations into
-    # every consumer of the root (several times slower in the integrator).
-    theta, _, _ = jax.lax.fori_loop(
-        0, iterations, newton, (theta, jnp.zeros_like(theta), jnp.ones_like(theta))
-    )
-    theta = jax.lax.stop_gradient(jnp.where(immediate, 0.0, theta))
+def _newton_step(setup, state):
+    """One Newton step inside the bracket [lo, hi]; a step that leaves it is replaced by
+    bisection."""
+    _, p, p_lo, _, _ = setup
+    theta, lo, hi = state
+    g = _poly(p, theta)
+    same = jnp.sign(g) == jnp.sign(p_lo)
+    lo = jnp.where(same, theta, lo)
+    hi = jnp.where(same, hi, theta)
+    step = theta - _safe_div(g, _poly_slope(p, theta))
+    inside = (step >= lo) & (step <= hi)
+    theta = jnp.where(g == 0, theta, jnp.where(inside, step, 0.5 * (lo + hi)))
+    return theta, lo, hi
+
+
+def _newton_finish(setup, state):
+    """The root: the stopped iterations' result and one live Newton step (the derivative)."""
+    live, _, _, _, immediate = setup
+    theta = jax.lax.stop_gradient(jnp.where(immediate, 0.0, state[0]))
     step = theta - _safe_div(_poly(live, theta), _poly_slope(live, theta))
     return jnp.clip(jnp.where(theta > 0, step, theta), 0.0, 1.0)

@@ -74,7 +74,12 @@ WINDOW_GROWTH = 4
 #: The fewest frames of a window.
 MIN_WINDOW_FRAMES = 64
 
-#: Most particles one device simulates side by side (one vmapped simulation).
+#: Most particles one device simulates side by side (one vmapped simulation). It must stay
+#: within 128, whose single-precision state arrays (4 bytes a particle) fill the 512 bytes
+#: under which XLA's CPU runtime runs a loop body's kernels one after another
+#: (`vfjax._integrate._events._alone`): one more lane schedules them as a dataflow graph and
+#: about doubles a swarm iteration's time (the profiled costs of 96 particles take 13.5 ms,
+#: of 128 16.6 ms, of 136 36 ms).
 MAX_LANES = 96
 #: Lane counts are multiples of this: each particle then sits in a full SIMD vector of the
 #: vectorised simulation (of 2, 4 or 8 doubles), where it computes the same bits whatever

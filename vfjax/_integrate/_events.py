@@ -4,6 +4,7 @@ an early-stopping loop, or in a `lax.scan` of the same values where derivatives 
 (a custom JVP)."""
 
 import functools
+import math
 from typing import NamedTuple
 
 import equinox as eqx
@@ -13,7 +14,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .. import phases
-from .._hermite import hermite, hermite_root
+from .._hermite import hermite, hermite_root, hermite_roots
 from ..model import VocalFoldModel
 
 #: Event budget per second of simulated time. A glottal cycle has up to 7 events, so the
@@ -125,12 +126,15 @@ def _computed_once(value, one):
     return value / one
 
 
-def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one):
+def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one, apart=False):
     """The first regime switch on a trial step, located on the step's Hermite cubics.
 
     Returns (event, theta, x_e, v_e, is_flow, is_inner, is_dir): whether a switch happened,
     its fraction of the step, the state there (projected onto the switching surface) and
-    which switch it was (contact x_0, sub-critical x_c, or velocity reversal).
+    which switch it was (contact x_0, sub-critical x_c, or velocity reversal). ``apart``:
+    the displacement's and the velocity's roots solved as separate arrays, not stacked (for
+    `_integrate_apart`: a stack of the two doubles the batch's arrays, which then pass the
+    512 bytes of `_alone` from 64 single-precision lanes on).
     """
     xs = (x, v * dt, x1, v1 * dt)
     vs = (v, a0 * dt, v1, a1 * dt)
@@ -141,7 +145,10 @@ def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one):
     # first on the way up: one root of the displacement cubic serves both.
     x_first_is_flow = cross_flow & ~(cross_inner & (x1 < x))
     x_target = jnp.where(x_first_is_flow, x0, xc)
-    roots = hermite_root(*(jnp.stack([p, q]) for p, q in zip(xs + (x_target,), vs + (0.0,))))
+    if apart:
+        roots = hermite_roots(xs + (x_target,), vs + (0.0,))
+    else:
+        roots = hermite_root(*(jnp.stack([p, q]) for p, q in zip(xs + (x_target,), vs + (0.0,))))
     theta_x = _computed_once(jnp.where(cross_flow | cross_inner, roots[0], 1.0), one)
     theta_v = _computed_once(jnp.where(cross_dir, roots[1], 1.0), one)
     event = cross_flow | cross_inner | cross_dir
@@ -172,11 +179,11 @@ def _hold_ramp(depth):
     return jnp.clip(depth / _HOLD_RAMP, 0.0, 1.0)
 
 
-def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
+def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin, apart=False):
     """One scan iteration: a full grid step, a step up to an event, or a stretch of hold.
 
     The model's time-dependent terms see time measured from ``origin`` (`simulate`'s
-    ``t_start``)."""
+    ``t_start``). ``apart``: as for `_locate_event`."""
     has_hold = model.closure_duration is not None
     x0, xc = model.contact_displacement, model.subcritical_displacement()
     # the last grid point, as `t_target` computes it (h, n_steps and origin may be traced)
@@ -193,7 +200,7 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin):
         mode = (c_flow, c_inner, c_closing)
         x1, v1, z1, a0, dz0, a1, dz1 = _rk4(model, c.t, c.x, c.v, c.z, dt, mode, xc, origin, one)
         event, theta, xe, ve, is_flow, is_inner, is_dir = _locate_event(
-            c.x, c.v, *mode, x1, v1, a0, a1, dt, x0, xc, one
+            c.x, c.v, *mode, x1, v1, a0, a1, dt, x0, xc, one, apart
         )
         # the internal states at the event, on their own Hermite cubics over the step
         ze = jax.tree.map(
@@ -365,6 +372,106 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None, limi
 
     rows = _batch_first(jax.tree.map(fill, final, rows))
     return (end, rows) if warm is None else (begin, end, rows)
+
+
+def _integrate_apart(model, start, *, h, n_steps, n_iter, origin, warm):
+    """`_integrate_loop` with ``warm``, each iteration run as a program of its own (`_alone`)
+    and its row written by the loop around it; the same motion, not the same bits (XLA
+    compiles the iteration's arithmetic otherwise there).
+
+    For a batch whose state's arrays are small: at most 128 lanes in single precision (the
+    swarm's simulations, `integrate_window_single`), 64 in double. There the iteration's
+    kernels run one after another; for larger batches they are scheduled as a dataflow graph
+    in either loop, and this one then costs more (a conditional and a loop trip per
+    iteration): 48 particles' profiled costs take 8.3 ms against 10.1-10.7 ms, 96 take 13.1
+    against 14.6 ms, but 192 take 48 against 26 ms."""
+    packing = _RowPacking(_row(start))
+    rows = jnp.zeros((packing.width, n_iter), packing.dtype)
+    first_step, budget = warm
+    budget = _CHUNK * -(-budget // _CHUNK)  # in whole trips, as `_integrate_loop` counts it
+
+    def warming_after(i, c):
+        return eqxi.unvmap_any((i < budget) & c.active(first_step))
+
+    def iteration(state):
+        warming, i, j, begin, c = state
+        body = _iteration(model, h, jnp.where(warming, first_step, n_steps), origin, apart=True)
+        c = body(c, None)[0]
+        i = jnp.where(warming, i + 1, i)
+        j = jnp.where(warming, j, j + 1)
+        begin = jax.tree.map(lambda a, b: jnp.where(warming, a, b), c, begin)
+        return warming & warming_after(i, c), i, j, begin, c
+
+    def trip(state):
+        *state, rows = state
+        before, j = state[4], state[2]
+        new = _alone(iteration, tuple(state), once=j >= 0)
+        # a warm-up iteration's row lands where the first kept iteration writes its own
+        row = packing.pack(_row_of(before, new[4]))
+        return new + (jax.lax.dynamic_update_slice_in_dim(rows, row[:, None], j, 1),)
+
+    def running(state):
+        warming, _, j, _, c, _ = state
+        return warming | ((j < n_iter) & eqxi.unvmap_any(c.active(n_steps)))
+
+    zero = jnp.zeros((), jnp.int32)
+    state = (warming_after(zero, start), zero, zero, start, start, rows)
+    _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
+    done = jnp.arange(n_iter) >= j
+    final = _row(end)
+
+    def fill(f, r):
+        return jnp.where(jnp.reshape(done, done.shape + (1,) * jnp.ndim(f)), f, r)
+
+    return begin, end, _batch_first(jax.tree.map(fill, final, packing.unpack(rows)))
+
+
+def _alone(step, state, *, once):
+    """``step(state)`` run as a program of its own: the branch of a conditional whose
+    predicate ``once`` is always True (but traced, so that XLA keeps the conditional).
+
+    XLA's CPU runtime runs the kernels of a loop's body one after another where each buffer
+    they use is small (at most 512 bytes) or where there are few kernels (at most 8), and
+    otherwise schedules them as a dataflow graph, which costs about as much per kernel as the
+    step's arithmetic on a few dozen lanes. The rows, a large buffer written in the
+    iteration's own body, make all of its ~50 kernels pay that cost. As a branch of its own
+    the iteration uses the state's arrays alone, and the loop's body around it (the
+    conditional and the row's write) has few kernels."""
+    return jax.lax.cond(once, step, lambda state: state, state)
+
+
+def _row_of(before: _Carry, after: _Carry) -> tuple:
+    """The dense-output row of the iteration from ``before`` to ``after``, as `_iteration`
+    writes it: the state reached and the phase of the segment that ends there."""
+    return (after.t, after.x, after.v, before.phase_code(), after.z)
+
+
+class _RowPacking:
+    """A dense-output row (`_row`: t, x, v, phase code, internal states) as one vector and
+    back, exactly (the phase code, a small integer, is exact in any floating type): a loop
+    then writes one array per iteration, not one per field."""
+
+    def __init__(self, row):
+        leaves, self.tree = jax.tree.flatten(row)
+        self.shapes = [jnp.shape(y) for y in leaves]
+        self.dtypes = [jnp.result_type(y) for y in leaves]
+        self.dtype = jnp.result_type(*(d for d in self.dtypes if jnp.issubdtype(d, jnp.floating)))
+        self.sizes = [math.prod(s) for s in self.shapes]
+        self.width = sum(self.sizes)
+
+    def pack(self, row):
+        """``row`` as a vector of `width` values."""
+        return jnp.concatenate([jnp.ravel(y).astype(self.dtype) for y in jax.tree.leaves(row)])
+
+    def unpack(self, rows):
+        """Packed ``rows`` (`width` x rows) as the row's pytree, each leaf with a leading row
+        axis."""
+        n, leaves, at = rows.shape[1], [], 0
+        for shape, dtype, size in zip(self.shapes, self.dtypes, self.sizes):
+            leaf = rows[at] if shape == () else rows[at : at + size].T.reshape((n,) + shape)
+            leaves.append(leaf.astype(dtype))
+            at += size
+        return jax.tree.unflatten(self.tree, leaves)
 
 
 def _batch_first(rows):

@@ -12,7 +12,7 @@ from jaxtyping import Array
 
 from .._sampling import Sampling, length_bucket
 from ..model import VocalFoldModel
-from ._events import _CHUNK, _DIVERGED, EVENTS_PER_SECOND, _integrate_loop
+from ._events import _CHUNK, _DIVERGED, EVENTS_PER_SECOND, _integrate_apart, _integrate_loop
 from ._output import Simulation
 from ._simulate import _PER_FRAME, MAX_ITERATIONS, _sampled, _start
 
@@ -98,15 +98,18 @@ def window_size(sampling: Sampling) -> tuple[int, int]:
 # then traces the integrator once for all of them (tracing is paid in every process, even when
 # the persistent compilation cache holds the program).
 @eqx.filter_jit
-def integrate_window(model, grid: SampledGrid, *, n_rows: int):
+def integrate_window(model, grid: SampledGrid, *, n_rows: int, small_batch: bool = False):
     """The integration behind `simulate_frames`: ``(begin, end, rows)``, the carry where the
     kept rows start, the final carry and the ``n_rows`` dense rows of the window.
 
     The motion up to the window (`LOOKBACK` before the first frame) runs in a loop that keeps
     no rows and whose length is data. It does not depend on the frames' time shift: a fit
-    moves the frames over one integration (`sample_window`). Forward-mode derivatives only."""
+    moves the frames over one integration (`sample_window`). Forward-mode derivatives only.
+    ``small_batch``: vmapped over at most 128 members in single precision (or 64 in double),
+    so each iteration runs as a program of its own (`_integrate_apart`)."""
     start = _start(model, jnp.asarray(model.contact_displacement, float), jnp.zeros((), float))
-    return _integrate_loop(
+    integrate = _integrate_apart if small_batch else _integrate_loop
+    return integrate(
         model,
         start,
         h=grid.h,
@@ -140,10 +143,15 @@ def integrate_window_single(model, grid: SampledGrid, *, n_rows: int):
     vmapped single-precision integration takes about half the time of a double one on a CPU
     (twice the lanes per vector instruction). Every constant of the integration and of the
     model's terms is traced in single precision too (JAX's 64-bit mode off while tracing).
-    The polish and every reported figure use the double-precision integration."""
+    The polish and every reported figure use the double-precision integration. The swarm
+    simulates at most `vfjax._fit._engine.MAX_LANES` particles side by side, a small batch
+    (``small_batch``)."""
     with jax.enable_x64(False):
         out = integrate_window(
-            _with_precision(model, True), _with_precision(grid, True), n_rows=n_rows
+            _with_precision(model, True),
+            _with_precision(grid, True),
+            n_rows=n_rows,
+            small_batch=True,
         )
     return _with_precision(out, False)
 
