@@ -243,6 +243,18 @@ def test_a_demo_recording_starts_at_its_warmup():
         demo_recording("N1", warmup=-0.1)
 
 
+def _scaled_n1(term):
+    """Six N1 models, K and P_s scaled together from 0.8 to 1.5 (some close, some never do),
+    with a source-tract inertance (a term with an internal state) for ``term`` "tract"."""
+    base = vfjax.preset("N1")
+    if term == "tract":
+        base = base.with_term(vfjax.SourceTractInertance(I_t=0.0074))
+    scales = jnp.asarray([0.8, 0.95, 1.0, 1.05, 1.2, 1.5])
+    return jax.vmap(lambda s: base.set(K=base.params()["K"] * s, P_s=base.params()["P_s"] * s))(
+        scales
+    )
+
+
 @pytest.mark.parametrize("term", [None, "tract"])
 def test_the_swarms_single_precision_window_follows_the_double_one(term):
     """The swarm's profile integrates in single precision (`integrate_window_single`): its
@@ -258,13 +270,7 @@ def test_the_swarms_single_precision_window_follows_the_double_one(term):
         window_size,
     )
 
-    base = vfjax.preset("N1")
-    if term == "tract":
-        base = base.with_term(vfjax.SourceTractInertance(I_t=0.0074))
-    scales = jnp.asarray([0.8, 0.95, 1.0, 1.05, 1.2, 1.5])
-    batch = jax.vmap(lambda s: base.set(K=base.params()["K"] * s, P_s=base.params()["P_s"] * s))(
-        scales
-    )
+    batch = _scaled_n1(term)
     sampling = vfjax.Sampling(fps=FPS, n_frames=201, substeps=4, warmup=0.02, max_time_shift=0.0)
     grid = sampled_grid(sampling)
     n_out, n_rows = window_size(sampling)
@@ -298,13 +304,7 @@ def test_a_small_batch_integrates_the_same_motion_step_by_step(term):
     state, and the same state where the kept rows begin and at the end."""
     from vfjax._integrate import integrate_window, sampled_grid, window_size
 
-    base = vfjax.preset("N1")
-    if term == "tract":
-        base = base.with_term(vfjax.SourceTractInertance(I_t=0.0074))
-    scales = jnp.asarray([0.8, 0.95, 1.0, 1.05, 1.2, 1.5])
-    batch = jax.vmap(lambda s: base.set(K=base.params()["K"] * s, P_s=base.params()["P_s"] * s))(
-        scales
-    )
+    batch = _scaled_n1(term)
     sampling = vfjax.Sampling(fps=FPS, n_frames=201, substeps=4, warmup=0.02)
     grid = sampled_grid(sampling)
     _, n_rows = window_size(sampling)

@@ -364,14 +364,20 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None, limi
 
         state = (warming_after(zero, start), zero, zero, start, start, rows)
         _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
-    done = jnp.arange(n_iter) >= j
+    rows = _batch_first(_filled(rows, j, end))
+    return (end, rows) if warm is None else (begin, end, rows)
+
+
+def _filled(rows, j, end: _Carry):
+    """``rows`` (a pytree of `_row`'s layout, a leading row axis) with every row from ``j``
+    on the final state ``end``'s, as the scan's idle iterations would have written them."""
     final = _row(end)
 
     def fill(f, r):
+        done = jnp.arange(r.shape[0]) >= j
         return jnp.where(jnp.reshape(done, done.shape + (1,) * jnp.ndim(f)), f, r)
 
-    rows = _batch_first(jax.tree.map(fill, final, rows))
-    return (end, rows) if warm is None else (begin, end, rows)
+    return jax.tree.map(fill, final, rows)
 
 
 def _integrate_apart(model, start, *, h, n_steps, n_iter, origin, warm):
@@ -417,13 +423,7 @@ def _integrate_apart(model, start, *, h, n_steps, n_iter, origin, warm):
     zero = jnp.zeros((), jnp.int32)
     state = (warming_after(zero, start), zero, zero, start, start, rows)
     _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
-    done = jnp.arange(n_iter) >= j
-    final = _row(end)
-
-    def fill(f, r):
-        return jnp.where(jnp.reshape(done, done.shape + (1,) * jnp.ndim(f)), f, r)
-
-    return begin, end, _batch_first(jax.tree.map(fill, final, packing.unpack(rows)))
+    return begin, end, _batch_first(_filled(packing.unpack(rows), j, end))
 
 
 def _alone(step, state, *, once):
