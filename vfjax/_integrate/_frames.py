@@ -143,15 +143,21 @@ def integrate_window_single(model, grid: SampledGrid, *, n_rows: int):
     vmapped single-precision integration takes about half the time of a double one on a CPU
     (twice the lanes per vector instruction). Every constant of the integration and of the
     model's terms is traced in single precision too (JAX's 64-bit mode off while tracing).
-    The polish and every reported figure use the double-precision integration. The swarm
-    simulates at most `vfjax._fit._engine.MAX_LANES` particles side by side, a small batch
-    (``small_batch``)."""
+    The polish and every reported figure use the double-precision integration.
+
+    The swarm simulates at most `vfjax._fit._engine.MAX_LANES` particles side by side: a
+    small batch (``small_batch``) where each internal state of the model's terms is one value
+    a particle, whose arrays then stay within 512 bytes. A term whose state has several
+    values a particle (the folds' pair, a power-law tissue's elements) makes them larger, and
+    its model keeps the chunked loop (which it runs up to twice as fast). The choice depends
+    on the model's structure alone, so a particle's bits do not depend on its batch."""
+    small = all(math.prod(jnp.shape(z)) == 1 for z in jax.tree.leaves(model.initial_state()))
     with jax.enable_x64(False):
         out = integrate_window(
             _with_precision(model, True),
             _with_precision(grid, True),
             n_rows=n_rows,
-            small_batch=True,
+            small_batch=small,
         )
     return _with_precision(out, False)
 
