@@ -106,7 +106,8 @@ def integrate_window(model, grid: SampledGrid, *, n_rows: int, small_batch: bool
     no rows and whose length is data. It does not depend on the frames' time shift: a fit
     moves the frames over one integration (`sample_window`). Forward-mode derivatives only.
     ``small_batch``: vmapped over at most 128 members in single precision (or 64 in double),
-    so each iteration runs as a program of its own (`_integrate_apart`)."""
+    each internal state of the model's terms one value a member, so that each iteration runs
+    as a program of its own (`_integrate_apart`)."""
     start = _start(model, jnp.asarray(model.contact_displacement, float), jnp.zeros((), float))
     integrate = _integrate_apart if small_batch else _integrate_loop
     return integrate(
