@@ -265,8 +265,7 @@ def _iteration(model: VocalFoldModel, h: float, n_steps: int, origin, apart=Fals
         keep = ~active | bad
         out = jax.tree.map(lambda old, nw: jnp.where(keep, old, nw), c, new)
         out = out._replace(flags=out.flags | jnp.where(active & bad, _DIVERGED, 0))
-        code = _phase_code(c_flow, c_inner, c_closing, c_hold)
-        return out, (out.t, out.x, out.v, code, out.z)
+        return out, _row_of(c, out)
 
     return body
 
@@ -294,7 +293,13 @@ def _integrate_scan(model, start, *, h, n_steps, n_iter, origin, limit=None):
 
 def _row(c: _Carry) -> tuple:
     """The dense-output row of the carry ``c``, as an iteration that ends there writes it."""
-    return (c.t, c.x, c.v, c.phase_code(), c.z)
+    return _row_of(c, c)
+
+
+def _row_of(before: _Carry, after: _Carry) -> tuple:
+    """The dense-output row of the iteration from ``before`` to ``after``: the state reached
+    and the phase of the segment that ends there."""
+    return (after.t, after.x, after.v, before.phase_code(), after.z)
 
 
 def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None, limit=None):
@@ -344,25 +349,19 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None, limi
     else:
         first_step, budget = warm
 
-        def warming_after(i, c):
-            return eqxi.unvmap_any((i < budget) & c.active(first_step))
-
         def trip(state):
             warming, i, j, begin, c, rows = state
             # a warm-up trip's rows land where the first kept trip writes its own
             new, rows = advance(c, rows, j, jnp.where(warming, first_step, n_steps))
             # while warming, the members beyond their budget stay where they are
             c = jax.tree.map(lambda a, b: jnp.where(warming & (i >= budget), b, a), new, c)
-            i = jnp.where(warming, i + _CHUNK, i)
-            j = jnp.where(warming, j, j + _CHUNK)
-            begin = jax.tree.map(lambda a, b: jnp.where(warming, a, b), c, begin)
-            return warming & warming_after(i, c), i, j, begin, c, rows
+            return _counted(warming, i, j, begin, c, _CHUNK, first_step, budget) + (rows,)
 
         def running(state):
             warming, _, j, _, c, _ = state
             return warming | kept(j, c)
 
-        state = (warming_after(zero, start), zero, zero, start, start, rows)
+        state = (_warming(zero, start, first_step, budget), zero, zero, start, start, rows)
         _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
     rows = _batch_first(_filled(rows, j, end))
     return (end, rows) if warm is None else (begin, end, rows)
@@ -396,17 +395,11 @@ def _integrate_apart(model, start, *, h, n_steps, n_iter, origin, warm):
     first_step, budget = warm
     budget = _CHUNK * -(-budget // _CHUNK)  # in whole trips, as `_integrate_loop` counts it
 
-    def warming_after(i, c):
-        return eqxi.unvmap_any((i < budget) & c.active(first_step))
-
     def iteration(state):
         warming, i, j, begin, c = state
         body = _iteration(model, h, jnp.where(warming, first_step, n_steps), origin, apart=True)
         c = body(c, None)[0]
-        i = jnp.where(warming, i + 1, i)
-        j = jnp.where(warming, j, j + 1)
-        begin = jax.tree.map(lambda a, b: jnp.where(warming, a, b), c, begin)
-        return warming & warming_after(i, c), i, j, begin, c
+        return _counted(warming, i, j, begin, c, 1, first_step, budget)
 
     def trip(state):
         *state, rows = state
@@ -421,9 +414,25 @@ def _integrate_apart(model, start, *, h, n_steps, n_iter, origin, warm):
         return warming | ((j < n_iter) & eqxi.unvmap_any(c.active(n_steps)))
 
     zero = jnp.zeros((), jnp.int32)
-    state = (warming_after(zero, start), zero, zero, start, start, rows)
+    state = (_warming(zero, start, first_step, budget), zero, zero, start, start, rows)
     _, _, j, begin, end, rows = jax.lax.while_loop(running, trip, state)
     return begin, end, _batch_first(_filled(packing.unpack(rows), j, end))
+
+
+def _warming(i, c: _Carry, first_step, budget):
+    """Whether a warm-up goes on after ``i`` of its iterations: some member has not reached
+    the grid step ``first_step`` and the ``budget`` of iterations is not spent."""
+    return eqxi.unvmap_any((i < budget) & c.active(first_step))
+
+
+def _counted(warming, i, j, begin, c: _Carry, n, first_step, budget):
+    """A warm-up loop's state after ``n`` iterations that ended at ``c``: whether it is still
+    warming, its warm-up iterations ``i``, its kept rows ``j`` and ``begin``, the state where
+    the kept rows start."""
+    i = jnp.where(warming, i + n, i)
+    j = jnp.where(warming, j, j + n)
+    begin = jax.tree.map(lambda a, b: jnp.where(warming, a, b), c, begin)
+    return warming & _warming(i, c, first_step, budget), i, j, begin, c
 
 
 def _alone(step, state, *, once):
@@ -438,12 +447,6 @@ def _alone(step, state, *, once):
     the iteration uses the state's arrays alone, and the loop's body around it (the
     conditional and the row's write) has few kernels."""
     return jax.lax.cond(once, step, lambda state: state, state)
-
-
-def _row_of(before: _Carry, after: _Carry) -> tuple:
-    """The dense-output row of the iteration from ``before`` to ``after``, as `_iteration`
-    writes it: the state reached and the phase of the segment that ends there."""
-    return (after.t, after.x, after.v, before.phase_code(), after.z)
 
 
 class _RowPacking:
