@@ -338,10 +338,11 @@ def test_a_small_batch_integrates_the_same_motion_step_by_step(term):
 
 
 def test_roots_solved_apart_are_the_stacked_roots_and_solve_the_cubic():
-    """`hermite_roots` of problems given apart equals `hermite_root` of the same problems
-    stacked, and each root solves its cubic: against a bisection to machine precision (in
-    numpy) for random cubics with a sign change over the step, a step starting on the surface
-    (its trivial root at 0 divided out) and a step starting at rest."""
+    """`hermite_roots` of problems given apart, its Newton iterations looped or unrolled,
+    equals `hermite_root` of the same problems stacked, and each root solves its cubic:
+    against a bisection to machine precision (in numpy) for random cubics with a sign change
+    over the step, a step starting on the surface (its trivial root at 0 divided out) and a
+    step starting at rest."""
     from vfjax._hermite import hermite, hermite_root, hermite_roots
 
     rng = np.random.default_rng(3)
@@ -356,9 +357,11 @@ def test_roots_solved_apart_are_the_stacked_roots_and_solve_the_cubic():
     first = (y0, d0, y1, d1, target)
     second = tuple(np.roll(a, 7) for a in first)
     apart = hermite_roots(first, second)
+    unrolled = jax.jit(lambda a, b: hermite_roots(a, b, unrolled=True))(first, second)
     stacked = hermite_root(*(jnp.stack([a, b]) for a, b in zip(first, second)))
-    for root, row in zip(apart, stacked):
+    for root, other, row in zip(apart, unrolled, stacked):
         np.testing.assert_allclose(np.asarray(root), np.asarray(row), rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(np.asarray(other), np.asarray(row), rtol=1e-14, atol=1e-15)
 
     def bisect(y0, d0, y1, d1, target):
         g = lambda th: np.asarray(hermite(th, y0, d0, y1, d1)) - target  # noqa: E731

@@ -134,7 +134,8 @@ def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one, a
     which switch it was (contact x_0, sub-critical x_c, or velocity reversal). ``apart``:
     the displacement's and the velocity's roots solved as separate arrays, not stacked (for
     `_integrate_apart`: a stack of the two doubles the batch's arrays, which then pass the
-    512 bytes of `_alone` from 64 single-precision lanes on).
+    512 bytes of `_alone` from 64 single-precision lanes on), their Newton iterations
+    unrolled (`hermite_roots`).
     """
     xs = (x, v * dt, x1, v1 * dt)
     vs = (v, a0 * dt, v1, a1 * dt)
@@ -146,7 +147,7 @@ def _locate_event(x, v, flow, inner, closing, x1, v1, a0, a1, dt, x0, xc, one, a
     x_first_is_flow = cross_flow & ~(cross_inner & (x1 < x))
     x_target = jnp.where(x_first_is_flow, x0, xc)
     if apart:
-        roots = hermite_roots(xs + (x_target,), vs + (0.0,))
+        roots = hermite_roots(xs + (x_target,), vs + (0.0,), unrolled=True)
     else:
         roots = hermite_root(*(jnp.stack([p, q]) for p, q in zip(xs + (x_target,), vs + (0.0,))))
     theta_x = _computed_once(jnp.where(cross_flow | cross_inner, roots[0], 1.0), one)
