@@ -1,5 +1,6 @@
 """The integrator against analytic solutions, and its flags, phases and batching."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -335,6 +336,39 @@ def test_a_small_batch_integrates_the_same_motion_step_by_step(term):
         np.testing.assert_array_equal(np.asarray(a.flags), np.asarray(b.flags))
         np.testing.assert_array_equal(np.asarray(a.events), np.asarray(b.events))
         np.testing.assert_allclose(np.asarray(b.t), np.asarray(a.t), rtol=1e-12, atol=0)
+
+
+def test_a_member_beyond_its_warm_up_budget_stops_there_in_either_layout():
+    """A member whose warm-up runs out of its iteration budget (`SampledGrid.warm_budget`,
+    data per member: a batch of fits of several recordings) stays where it stopped, in the
+    swarm's small-batch layout as in the chunked loop, whatever its batch-mates' budgets: its
+    kept rows begin there (before the window: not warmed), and a particle's cost cannot depend
+    on the batch it ran in."""
+    from vfjax._integrate import integrate_window, sampled_grid, window_size
+
+    batch = _scaled_n1(None)
+    n = jax.tree.leaves(batch)[0].shape[0]
+    sampling = vfjax.Sampling(fps=FPS, n_frames=201, substeps=4, warmup=0.02)
+    grid = sampled_grid(sampling)
+    _, n_rows = window_size(sampling)
+    short = np.arange(n) % 2 == 0  # 40 iterations (48 in whole trips) of the 288 steps
+    budgets = jnp.where(short, 40, grid.warm_budget)
+    grids = jax.vmap(lambda b: eqx.tree_at(lambda g: g.warm_budget, grid, b))(budgets)
+
+    def integrate(small):
+        one = lambda m, g: integrate_window(m, g, n_rows=n_rows, small_batch=small)  # noqa: E731
+        return jax.jit(jax.vmap(one))(batch, grids)
+
+    (begin, end, rows), (begin_s, end_s, rows_s) = integrate(False), integrate(True)
+    window = int(grid.window_step)
+    steps = np.asarray(begin.step)
+    assert np.all(steps[short] < window) and np.all(steps[~short] == window), steps
+    for a, b in ((begin, begin_s), (end, end_s)):
+        np.testing.assert_array_equal(np.asarray(b.step), np.asarray(a.step))
+        np.testing.assert_array_equal(np.asarray(b.events), np.asarray(a.events))
+        np.testing.assert_allclose(np.asarray(b.t), np.asarray(a.t), rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(np.asarray(rows_s[3]), np.asarray(rows[3]))  # phases
+    np.testing.assert_allclose(np.asarray(rows_s[0]), np.asarray(rows[0]), rtol=1e-12, atol=0)
 
 
 def test_roots_solved_apart_are_the_stacked_roots_and_solve_the_cubic():

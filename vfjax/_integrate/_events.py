@@ -398,7 +398,10 @@ def _integrate_apart(model, start, *, h, n_steps, n_iter, origin, warm):
 
     def iteration(state):
         warming, i, j, begin, c = state
-        body = _iteration(model, h, jnp.where(warming, first_step, n_steps), origin, apart=True)
+        # while warming, the members beyond their budget stay where they are (as in
+        # `_integrate_loop`): their last step 0 leaves them idle
+        last_step = jnp.where(warming, jnp.where(i >= budget, 0, first_step), n_steps)
+        body = _iteration(model, h, last_step, origin, apart=True)
         c = body(c, None)[0]
         return _counted(warming, i, j, begin, c, 1, first_step, budget)
 
