@@ -86,8 +86,9 @@ def hermite_roots(*problems, iterations: int = 6, unrolled: bool = False):
     def newton(_, states):
         return tuple(_newton_step(setup, state) for setup, state in zip(setups, states))
 
-    # A loop, not unrolled Python: XLA's CPU fusion would otherwise copy the iterations into
-    # every consumer of the root (several times slower in the integrator).
+    # A loop unless ``unrolled``: XLA's CPU fusion copies unrolled iterations into every
+    # consumer of a root that is not materialised once (several times slower in the chunked
+    # integrator).
     start = tuple(
         (theta, jnp.zeros_like(theta), jnp.ones_like(theta)) for _, _, _, theta, _ in setups
     )

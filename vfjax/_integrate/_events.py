@@ -353,9 +353,8 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None, limi
         def trip(state):
             warming, i, j, begin, c, rows = state
             # a warm-up trip's rows land where the first kept trip writes its own
-            new, rows = advance(c, rows, j, jnp.where(warming, first_step, n_steps))
-            # while warming, the members beyond their budget stay where they are
-            c = jax.tree.map(lambda a, b: jnp.where(warming & (i >= budget), b, a), new, c)
+            last_step = _last_step(warming, i, first_step, budget, n_steps)
+            c, rows = advance(c, rows, j, last_step)
             return _counted(warming, i, j, begin, c, _CHUNK, first_step, budget) + (rows,)
 
         def running(state):
@@ -398,9 +397,7 @@ def _integrate_apart(model, start, *, h, n_steps, n_iter, origin, warm):
 
     def iteration(state):
         warming, i, j, begin, c = state
-        # while warming, the members beyond their budget stay where they are (as in
-        # `_integrate_loop`): their last step 0 leaves them idle
-        last_step = jnp.where(warming, jnp.where(i >= budget, 0, first_step), n_steps)
+        last_step = _last_step(warming, i, first_step, budget, n_steps)
         body = _iteration(model, h, last_step, origin, apart=True)
         c = body(c, None)[0]
         return _counted(warming, i, j, begin, c, 1, first_step, budget)
@@ -427,6 +424,14 @@ def _warming(i, c: _Carry, first_step, budget):
     """Whether a warm-up goes on after ``i`` of its iterations: some member has not reached
     the grid step ``first_step`` and the ``budget`` of iterations is not spent."""
     return eqxi.unvmap_any((i < budget) & c.active(first_step))
+
+
+def _last_step(warming, i, first_step, budget, n_steps):
+    """The grid step a warm-up loop's next iterations run to, per member: ``first_step``
+    while warming, 0 for a member beyond its ``budget`` (data per member; it then idles
+    where it stopped, whatever its batch-mates' budgets), and ``n_steps`` once the kept
+    rows begin."""
+    return jnp.where(warming, jnp.where(i >= budget, 0, first_step), n_steps)
 
 
 def _counted(warming, i, j, begin, c: _Carry, n, first_step, budget):
