@@ -295,6 +295,22 @@ def test_the_swarms_single_precision_window_follows_the_double_one(term):
     assert np.all(nmse > 0)  # it is single precision: not the double-precision bits
 
 
+def _in_both_layouts(batch, grid, n_rows):
+    """`integrate_window` of the vmapped ``batch`` (a `SampledGrid` shared, or one a member)
+    in the chunked loop and in the small-batch layout: their two ``(begin, end, rows)``."""
+    from vfjax._integrate import integrate_window
+
+    shared = jnp.ndim(grid.h) == 0
+
+    def integrate(small):
+        def one(m, g):
+            return integrate_window(m, g, n_rows=n_rows, small_batch=small)
+
+        return jax.jit(jax.vmap(one, in_axes=(0, None if shared else 0)))(batch, grid)
+
+    return integrate(False), integrate(True)
+
+
 @pytest.mark.parametrize("term", [None, "tract"])
 def test_a_small_batch_integrates_the_same_motion_step_by_step(term):
     """`integrate_window(small_batch=True)` (the swarm's layout: each iteration a program of
@@ -303,18 +319,14 @@ def test_a_small_batch_integrates_the_same_motion_step_by_step(term):
     (XLA compiles the iteration's arithmetic otherwise there, so not the same bits), for
     members that close and members that never close, with and without a term's internal
     state, and the same state where the kept rows begin and at the end."""
-    from vfjax._integrate import integrate_window, sampled_grid, window_size
+    from vfjax._integrate import sampled_grid, window_size
 
     batch = _scaled_n1(term)
     sampling = vfjax.Sampling(fps=FPS, n_frames=201, substeps=4, warmup=0.02)
     grid = sampled_grid(sampling)
     _, n_rows = window_size(sampling)
 
-    def integrate(small):
-        one = lambda m: integrate_window(m, grid, n_rows=n_rows, small_batch=small)  # noqa: E731
-        return jax.jit(jax.vmap(one))(batch)
-
-    (begin, end, rows), (begin_s, end_s, rows_s) = integrate(False), integrate(True)
+    (begin, end, rows), (begin_s, end_s, rows_s) = _in_both_layouts(batch, grid, n_rows)
     t, x, v, code, z = rows
     t_s, x_s, v_s, code_s, z_s = rows_s
     np.testing.assert_array_equal(np.asarray(code), np.asarray(code_s))
@@ -344,7 +356,7 @@ def test_a_member_beyond_its_warm_up_budget_stops_there_in_either_layout():
     swarm's small-batch layout as in the chunked loop, whatever its batch-mates' budgets: its
     kept rows begin there (before the window: not warmed), and a particle's cost cannot depend
     on the batch it ran in."""
-    from vfjax._integrate import integrate_window, sampled_grid, window_size
+    from vfjax._integrate import sampled_grid, window_size
 
     batch = _scaled_n1(None)
     n = jax.tree.leaves(batch)[0].shape[0]
@@ -354,12 +366,7 @@ def test_a_member_beyond_its_warm_up_budget_stops_there_in_either_layout():
     short = np.arange(n) % 2 == 0  # 40 iterations (48 in whole trips) of the 288 steps
     budgets = jnp.where(short, 40, grid.warm_budget)
     grids = jax.vmap(lambda b: eqx.tree_at(lambda g: g.warm_budget, grid, b))(budgets)
-
-    def integrate(small):
-        one = lambda m, g: integrate_window(m, g, n_rows=n_rows, small_batch=small)  # noqa: E731
-        return jax.jit(jax.vmap(one))(batch, grids)
-
-    (begin, end, rows), (begin_s, end_s, rows_s) = integrate(False), integrate(True)
+    (begin, end, rows), (begin_s, end_s, rows_s) = _in_both_layouts(batch, grids, n_rows)
     window = int(grid.window_step)
     steps = np.asarray(begin.step)
     assert np.all(steps[short] < window) and np.all(steps[~short] == window), steps
