@@ -88,6 +88,33 @@ def test_vmap_over_parameters_equals_a_loop():
         np.testing.assert_allclose(row, single, rtol=0, atol=1e-9)
 
 
+def test_loop_carries_start_batched_with_the_same_values():
+    """`batched_like` (the initial carries of the integrator's loops and of the
+    Levenberg-Marquardt scan, batched from their first trace): the values unchanged whatever
+    the probe holds (NaN and inf included) and in every dtype; under vmap batched wherever
+    the probe is (vmap refuses ``out_axes=None`` for a batched output); its derivative zero,
+    never NaN."""
+    from vfjax._batching import batched_like
+
+    tree = (jnp.zeros(3), jnp.ones((), jnp.float32), jnp.int32(7), jnp.array(True), jnp.inf)
+    for probe in (1.5, jnp.nan, -jnp.inf, {"model": jnp.arange(3.0), "name": "N1"}):
+        for got, leaf in zip(batched_like(probe, tree), tree):
+            assert got.dtype == jnp.asarray(leaf).dtype
+            np.testing.assert_array_equal(got, leaf)
+    probes = jnp.array([1.0, jnp.nan, 2.0])
+    jax.vmap(lambda p: jnp.zeros(3), out_axes=None)(probes)  # a constant stays unbatched
+    batched = jax.vmap(lambda p: batched_like(p, tree))(probes)
+    for got, leaf in zip(batched, tree):
+        np.testing.assert_array_equal(got, jnp.broadcast_to(leaf, (3,) + jnp.shape(leaf)))
+    for leaf in tree:
+        with pytest.raises(ValueError, match="out_axes"):
+            jax.vmap(lambda p, leaf=leaf: batched_like(p, leaf), out_axes=None)(probes)
+    for p in (1.5, jnp.nan, jnp.inf):
+        assert float(jax.grad(lambda p: batched_like(p, 2.0))(p)) == 0.0
+        _, tangent = jax.jvp(lambda p: batched_like(p, 2.0), (p,), (1.0,))
+        assert float(tangent) == 0.0
+
+
 def test_divergence_is_flagged_not_crashed():
     # A 1 µg fold with N1's stiffness: omega * dt ~ 10, RK4 is unstable and the state blows up.
     m = vfjax.preset("N1").set(M=1e-6).without(ClosureHold)

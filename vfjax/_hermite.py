@@ -3,6 +3,8 @@
 import jax
 import jax.numpy as jnp
 
+from ._batching import batched_like
+
 
 def hermite(theta, y0, d0, y1, d1):
     """Cubic through (0, y0) and (1, y1) with slopes d0, d1 (per unit theta)."""
@@ -90,7 +92,8 @@ def hermite_roots(*problems, iterations: int = 6, unrolled: bool = False):
     # consumer of a root that is not materialised once (several times slower in the chunked
     # integrator).
     start = tuple(
-        (theta, jnp.zeros_like(theta), jnp.ones_like(theta)) for _, _, _, theta, _ in setups
+        (theta, *batched_like(theta, (jnp.zeros_like(theta), jnp.ones_like(theta))))
+        for _, _, _, theta, _ in setups
     )
     if unrolled:
         states = start

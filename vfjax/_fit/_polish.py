@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from .._batching import batched_like
 from ._options import Polish
 from ._problem import Problem
 
@@ -138,6 +139,8 @@ def levenberg_marquardt(residual, y0, basis, steps: int, jacobian=None, jacobian
         y0,
         jnp.asarray(jnp.inf, y0.dtype),
     )
+    # batched from the first trace under vmap wherever the start is (see `batched_like`)
+    init = batched_like(y0, init)
     (*_, y, c), _ = jax.lax.scan(step, init, jnp.arange(steps))
     return y, c
 

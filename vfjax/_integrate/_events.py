@@ -14,6 +14,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .. import phases
+from .._batching import batched_like
 from .._hermite import hermite, hermite_root, hermite_roots
 from ..model import VocalFoldModel
 
@@ -324,6 +325,7 @@ def _integrate_loop(model, start, *, h, n_steps, n_iter, origin, warm=None, limi
     """
     final = _row(start)
     rows = jax.tree.map(lambda y: jnp.zeros((n_iter,) + jnp.shape(y), jnp.result_type(y)), final)
+    rows = batched_like(start, rows)  # written with batched rows (see `batched_like`)
 
     def advance(c, rows, j, last_step):
         """One trip: ``_CHUNK`` iterations towards the grid step ``last_step``, their rows
@@ -391,7 +393,7 @@ def _integrate_apart(model, start, *, h, n_steps, n_iter, origin, warm):
     iteration): 48 particles' profiled costs take 8.3 ms against 10.1-10.7 ms, 96 take 13.1
     against 14.6 ms, but 192 take 48 against 26 ms."""
     packing = _RowPacking(_row(start))
-    rows = jnp.zeros((packing.width, n_iter), packing.dtype)
+    rows = batched_like(start, jnp.zeros((packing.width, n_iter), packing.dtype))
     first_step, budget = warm
     budget = _CHUNK * -(-budget // _CHUNK)  # in whole trips, as `_integrate_loop` counts it
 

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike
 
+from .._batching import batched_like
 from .._sampling import Sampling, default_substeps, length_bucket
 from ..model import VocalFoldModel
 from ._events import (
@@ -277,7 +278,7 @@ def _simulate(
 def _start(model, x_init, v_init) -> _Carry:
     """The carry at time 0: the folds at ``x_init`` (cm) moving at ``v_init`` (cm/s)."""
     x0, xc = model.contact_displacement, model.subcritical_displacement()
-    return _Carry(
+    start = _Carry(
         t=jnp.zeros((), float),
         x=x_init,
         v=v_init,
@@ -287,6 +288,9 @@ def _start(model, x_init, v_init) -> _Carry:
         events=jnp.zeros((), jnp.int32),
         z=jax.tree.map(lambda y: jnp.asarray(y, float), model.initial_state()),
     )
+    # under vmap the integration makes every field batched: so it is from the loop's first
+    # trace (see `batched_like`)
+    return batched_like((model, x_init, v_init), start)
 
 
 def _sampled(
