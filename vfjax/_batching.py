@@ -15,7 +15,8 @@ def batched_like(probe, tree):
     constant, a state that starts at zero), until nothing changes; each time, the loops
     inside the body are traced with it. A carry that starts from ``tree`` is batched from the
     first trace (the statistic of `vfjax.diagnose`, whose refits nest the integrator's loops
-    in a Levenberg-Marquardt scan under two vmaps, traces in about a fifth less time).
+    in a Levenberg-Marquardt scan under two vmaps, is traced with a quarter fewer primitives
+    batched and staged: benchmarks/README.md).
 
     Each leaf passes through a select of the leaf with itself, on a predicate computed from
     ``probe``: the same value whatever ``probe`` holds (NaN included), no derivative added,
