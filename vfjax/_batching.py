@@ -1,4 +1,4 @@
-"""Loop carries batched from the start under `jax.vmap`, for a shorter trace."""
+"""Loop carries batched from the start under `jax.vmap`, so that less is traced."""
 
 import equinox as eqx
 import jax
@@ -19,10 +19,10 @@ def batched_like(probe, tree):
     batched and staged: benchmarks/README.md).
 
     Each leaf passes through a select of the leaf with itself, on a predicate computed from
-    ``probe``: the same value whatever ``probe`` holds (NaN included), no derivative added,
-    and XLA removes the select, so the compiled program computes the same bits."""
-    arrays = [
-        jnp.sum(jnp.asarray(x, dtype=float)) for x in jax.tree.leaves(probe) if eqx.is_array(x)
-    ]
+    ``probe`` (whether its sum is finite): the same value whatever ``probe`` holds (NaN
+    included), and no derivative added. XLA removes the selects of large arrays; what it
+    keeps (a few scalars a member, and the sum) is computed once, before the loop, and the
+    loop computes the same bits."""
+    arrays = [jnp.sum(x, dtype=float) for x in jax.tree.leaves(probe) if eqx.is_inexact_array(x)]
     finite = jnp.isfinite(sum(arrays, jnp.zeros((), float)))
     return jax.tree.map(lambda leaf: jnp.where(finite, leaf, leaf), tree)

@@ -3,8 +3,6 @@
 import jax
 import jax.numpy as jnp
 
-from ._batching import batched_like
-
 
 def hermite(theta, y0, d0, y1, d1):
     """Cubic through (0, y0) and (1, y1) with slopes d0, d1 (per unit theta)."""
@@ -92,8 +90,7 @@ def hermite_roots(*problems, iterations: int = 6, unrolled: bool = False):
     # consumer of a root that is not materialised once (several times slower in the chunked
     # integrator).
     start = tuple(
-        (theta, *batched_like(theta, (jnp.zeros_like(theta), jnp.ones_like(theta))))
-        for _, _, _, theta, _ in setups
+        (theta, jnp.zeros_like(theta), jnp.ones_like(theta)) for _, _, _, theta, _ in setups
     )
     if unrolled:
         states = start
