@@ -7,7 +7,7 @@ import jax.numpy as jnp
 
 def batched_like(probe, tree):
     """``tree``'s values, batched under `jax.vmap` wherever ``probe`` (a pytree: a model, a
-    state; its arrays are read) is.
+    state; its floating-point arrays are read) is.
 
     For the initial carry of a loop. `jax.vmap` batches a `lax.scan` or `lax.while_loop` by
     tracing its body with the carry batched as it enters, then again whenever the body makes
