@@ -235,6 +235,41 @@ def test_swarm_cost_is_the_best_shift_of_direct_simulations():
     assert float(np.sum(r**2)) == pytest.approx(float(start_cost), rel=1e-5)
 
 
+def test_swarm_start_is_a_latin_hypercube_with_the_bits_of_xlas_default_compilation():
+    """`_swarm_start` is compiled at LLVM's -O2, faster than XLA's default -O3: its bits
+    must be the default's, or every fit's swarm would start elsewhere. Each fit's particles
+    form a Latin hypercube of its box (one particle in each of n equal slices of every
+    coordinate), particle 0 at the starting point (0, clipped into the box)."""
+    from vfjax._fit._engine import _swarm_start
+
+    n_fits, d = 4, 6
+    rng = np.random.default_rng(3)
+    lowers = -rng.uniform(0.5, 2.0, (n_fits, d))
+    uppers = rng.uniform(0.5, 2.0, (n_fits, d))
+    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(11), i))(np.arange(n_fits))
+    swarm = Swarm()
+    fast = _swarm_start(lowers, uppers, keys, swarm, 2)
+    default = eqx.filter_jit(_swarm_start.__wrapped__)(lowers, uppers, keys, swarm, 2)
+
+    def bits(tree):
+        return [
+            np.asarray(
+                jax.random.key_data(x) if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key) else x
+            )
+            for x in jax.tree.leaves(tree)
+        ]
+
+    for a, b in zip(bits(fast), bits(default), strict=True):
+        np.testing.assert_array_equal(a, b)
+    position = np.asarray(fast.position)
+    assert position.shape == (n_fits, swarm.size, d)
+    np.testing.assert_array_equal(position[:, 0], 0.0)
+    cells = np.floor((position[:, 1:] - lowers[:, None]) / (uppers - lowers)[:, None] * swarm.size)
+    for fit_cells in cells:  # particle 0's cell is taken by the start; the rest are distinct
+        for column in fit_cells.T:
+            assert len(set(column)) == swarm.size - 1 and column.min() >= 0
+
+
 def test_lm_linearisation_is_the_residuals_jacobian():
     """The polish sees the residual through a rule that hands it the Jacobian matrix: equal
     to forward-mode AD of the residual itself, and to central finite differences."""

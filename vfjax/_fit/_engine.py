@@ -26,6 +26,7 @@ data. A fit's result does not depend on the batch it ran in, nor on the number o
 """
 
 import dataclasses
+import functools
 import math
 import sys
 import time
@@ -131,7 +132,15 @@ def _swarm_costs(batch, active, positions, width: int):
     )
 
 
-@eqx.filter_jit
+#: XLA's options for `_swarm_start`: LLVM's -O2 rather than XLA's default -O3. The program
+#: is the random bits of the Latin hypercube (threefry, and the sorts of its permutations),
+#: which -O3 compiles in about 1.4 s and -O2 in about 0.5 s, to the same bits
+#: (`tests/test_fit.py`). The simulating programs keep XLA's default: at -O2 their
+#: floating-point results differ in the last bits.
+_SWARM_START_OPTIONS = {"xla_backend_optimization_level": 2}
+
+
+@functools.partial(eqx.filter_jit, compiler_options=_SWARM_START_OPTIONS)
 def _swarm_start(lowers, uppers, keys, swarm: Swarm, n_aux: int):
     """Every fit's swarm scattered over its box, particle 0 at the starting model, at rest
     and not yet evaluated (no simulation: the first chunk evaluates them)."""
