@@ -194,8 +194,13 @@ def _split(tree, devices):
 
     def part(k):
         def cut(x):
+            if not eqx.is_array(x):
+                return x
             size = x.shape[0] // n
-            return x[k * size : (k + 1) * size] if eqx.is_array(x) else x
+            if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+                return x[k * size : (k + 1) * size]
+            # cut on the host: a device slice would compile a program per shape
+            return np.asarray(x)[k * size : (k + 1) * size]
 
         return placed(jax.tree.map(cut, tree), devices[k])
 
@@ -227,9 +232,14 @@ def side_by_side(calls: Sequence[Callable]) -> list:
 def stack_strong(*xs):
     """The leaves stacked, without JAX's weak type (a leaf built from a Python float is
     weakly typed, one set by `VocalFoldModel.set` is not): a batch's program must not depend
-    on how its models were made."""
-    stacked = jnp.stack(xs)
-    return stacked.astype(stacked.dtype)
+    on how its models were made. Stacked on the host (a device stack would compile a program
+    per shape and count), but for random keys."""
+    if any(
+        isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key) for x in xs
+    ):
+        stacked = jnp.stack(xs)
+        return stacked.astype(stacked.dtype)
+    return jax.device_put(np.stack([np.asarray(x) for x in xs]))
 
 
 def batch_bucket(n_fits: int) -> int:

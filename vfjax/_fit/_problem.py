@@ -501,8 +501,9 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
     problem = Problem(
         model=model,
         grid=sampled_grid(sampling),
-        measured=jnp.asarray(measured),
-        counted=jnp.asarray(np.arange(n_out) < recording.n_frames, dtype=float),
+        # placed, not converted: `jnp.asarray` of a NumPy array compiles a program per shape
+        measured=jax.device_put(measured),
+        counted=jax.device_put((np.arange(n_out) < recording.n_frames).astype(float)),
         reference=jnp.asarray([values[n] for n in names]),
         scale=jnp.asarray([(search_range(model, n) or (0.0, 1.0, 0.1))[2] for n in names]),
         floor=jnp.asarray(floor),
@@ -512,7 +513,7 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
         s_reference=jnp.asarray(s_ref),
         period=jnp.asarray(period),
         s_bounds=jnp.asarray(s_bounds),
-        difference=jnp.asarray(difference),
+        difference=jax.device_put(difference),
         names=names,
         fit_s=fit_s,
         n_out=n_out,
