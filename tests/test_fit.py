@@ -322,7 +322,8 @@ def test_a_new_length_and_frame_rate_compile_nothing_new():
     starting models and their fits through the same compiled programs: no compilation at
     all, at 6 kHz as at 2 kHz (8 RK4 steps a frame where the first fit took 4); nor do fits
     of other parameters of the paper's model (the closure duration from 0, in a linear
-    coordinate, and the pressure), which run the same programs."""
+    coordinate, and the pressure), which run the same programs. A recording of a new length
+    bucket compiles the fit's swarm and polish programs and no other."""
     truth = vfjax.preset("N3")
     swarm = Swarm(size=8, iterations=4, chunk=4)
     polish = Polish(max_steps=3)
@@ -355,6 +356,14 @@ def test_a_new_length_and_frame_rate_compile_nothing_new():
     assert len(seen) == start, f"{len(seen) - start} new compilations"
     jax.jit(lambda x: x * 3.0 + 1.0)(np.arange(3.0))  # the counter sees a new program
     assert len(seen) == start + 1
+    # a recording of a new length bucket compiles the fit's swarm and polish programs and
+    # nothing else: its batch's arrays are stacked, cut and placed on the host
+    short = Recording(area=first.area[:101], fps=first.fps, name="short")
+    assert vfjax.length_bucket(short.n_frames) != vfjax.length_bucket(first.n_frames)
+    fit(truth, short, swarm=swarm, polish=polish, progress=False)
+    # (each is lowered more than once: traced, exported and stored, then run from the store)
+    new = {re.sub(r"^jit\((.*?)(_stored)?\)$", r"\1", name) for name in seen[start + 1 :]}
+    assert new == {"_polish_batch", "_swarm_chunk"}, seen[start + 1 :]
 
 
 def test_first_fits_of_recordings_stating_their_pressure_or_not_share_a_batch():
