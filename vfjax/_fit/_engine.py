@@ -186,21 +186,23 @@ def placed(tree, device):
     return eqx.combine(jax.device_put(arrays, device), rest)
 
 
+def _is_key(x) -> bool:
+    """Whether ``x`` is an array of typed `jax.random` keys (which NumPy cannot hold)."""
+    return isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
 def _split(tree, devices):
     """``tree``'s array leaves cut along their leading axis into ``len(devices)`` equal
     consecutive parts, the k-th placed on ``devices[k]`` (a device may be listed more than
     once; its other leaves as they are)."""
     n = len(devices)
+    # cut on the host (a device slice would compile a program per shape), but for random keys
+    tree = jax.tree.map(lambda x: np.asarray(x) if eqx.is_array(x) and not _is_key(x) else x, tree)
 
     def part(k):
         def cut(x):
-            if not eqx.is_array(x):
-                return x
             size = x.shape[0] // n
-            if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
-                return x[k * size : (k + 1) * size]
-            # cut on the host: a device slice would compile a program per shape
-            return np.asarray(x)[k * size : (k + 1) * size]
+            return x[k * size : (k + 1) * size] if eqx.is_array(x) else x
 
         return placed(jax.tree.map(cut, tree), devices[k])
 
@@ -234,9 +236,7 @@ def stack_strong(*xs):
     weakly typed, one set by `VocalFoldModel.set` is not): a batch's program must not depend
     on how its models were made. Stacked on the host (a device stack would compile a program
     per shape and count), but for random keys."""
-    if any(
-        isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key) for x in xs
-    ):
+    if any(_is_key(x) for x in xs):
         stacked = jnp.stack(xs)
         return stacked.astype(stacked.dtype)
     return jax.device_put(np.stack([np.asarray(x) for x in xs]))
@@ -667,7 +667,7 @@ def _typed_key(key):
     (uint32, shape ``(2,)``, or ``(n, 2)`` for one per recording) is wrapped, so that a raw
     key is one key, not two keys of one number each."""
     key = jnp.asarray(key)
-    if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+    if _is_key(key):
         return key
     if key.dtype != jnp.uint32 or key.ndim not in (1, 2) or key.shape[-1] != 2:
         raise TypeError(
