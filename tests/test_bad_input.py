@@ -623,8 +623,8 @@ def test_frame_counts_are_integers_and_time_shifts_are_data():
 
     class Count(logging.Handler):
         def emit(self, record):
-            if record.getMessage().startswith("Compiling jit(_simulate)"):
-                compiled.append(record)
+            if record.getMessage().startswith("Compiling "):
+                compiled.append(record.getMessage()[:80])
 
     handler = Count()
     logging.getLogger("jax").addHandler(handler)
@@ -634,7 +634,8 @@ def test_frame_counts_are_integers_and_time_shifts_are_data():
                 vfjax.simulate(m, FPS, 51, time_shift=shift, max_time_shift=0.01)
             vfjax.simulate(m.set(K=7e5), FPS, 51, time_shift=0.002, max_time_shift=0.01)
             # another frame count and frame rate within the same buckets (frames padded to
-            # 128, the loop's 480-512 iterations to 512) are data too
+            # 128, the loop's 480-512 iterations to 512) are data too: not even the cut to
+            # the frame count compiles (it is made on the host)
             b = vfjax.simulate(m, FPS, 60, max_time_shift=0.01)
             c = vfjax.simulate(m, 5000.0, 51, max_time_shift=0.01)
     finally:

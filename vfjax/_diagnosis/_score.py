@@ -12,6 +12,7 @@ import numpy as np
 from scipy import stats
 
 from .._fit import FitResult
+from .._fit._engine import stack_strong
 from .._integrate import SampledGrid, sampled_grid, simulate_frames, window_size
 from .._programs import program
 from ..descriptors import fundamental_frequency
@@ -96,7 +97,9 @@ def _columns(sampler, names, tested, models, points, tangents):
 
 
 def _stack(models):
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *models)
+    """The models' leaves stacked on the host (`stack_strong`: one program however the
+    models were made, and no small program per batch size)."""
+    return jax.tree.map(stack_strong, *models)
 
 
 # ------------------------------------------------------------------------------- statistics
@@ -195,8 +198,8 @@ def sensitivities(result: FitResult, cands: Sequence[Candidate]):
                 names,
                 jobs.tested,
                 _stack(models),
-                jnp.asarray(points, dtype=float),
-                jnp.asarray(np.stack(tangents)),
+                np.asarray(points, dtype=float),
+                np.stack(tangents),
             )
         )
         g0 = gaws[0]

@@ -34,23 +34,24 @@ from ._options import DEFAULT_CALIBRATION, Calibration
 
 @dataclasses.dataclass(frozen=True)
 class _Jobs:
-    """The refits of one statistic: the control, then each candidate from its starts."""
+    """The refits of one statistic: the control, then each candidate from its starts (host
+    arrays: built, padded and cut with NumPy, placed on a device by the programs' calls)."""
 
     problem: object  # the group's wide model's `Problem` (the observed recording's data)
-    y0: jax.Array  # (n_y,) where every refit starts: the control's point on the recording
-    starts: jax.Array  # (jobs, n_y) candidate starts; NaN where the control's optimum is taken
-    frees: jax.Array  # (1 + jobs, n_params) fitted parameters of the control and each job
-    bases: jax.Array  # (1 + jobs, columns, n_y) each refit's search directions
+    y0: np.ndarray  # (n_y,) where every refit starts: the control's point on the recording
+    starts: np.ndarray  # (jobs, n_y) candidate starts; NaN where the control's optimum is taken
+    frees: np.ndarray  # (1 + jobs, n_params) fitted parameters of the control and each job
+    bases: np.ndarray  # (1 + jobs, columns, n_y) each refit's search directions
     owner: tuple  # candidate index of each job (in the diagnosis's list of candidates)
     # starts chosen on each recording: a pool of points whose time shift and S are found
     # afresh there (`Problem.start`), ranked per candidate by the cost so profiled
-    pool: jax.Array  # (entries, n_y) NaN where the control's optimum is taken
-    pool_free: jax.Array  # (entries, n_params) fitted parameters of each entry
-    pool_owner: jax.Array  # (entries,) candidate index of each entry (-1: padding)
-    rank: jax.Array  # (jobs,) which of its candidate's entries a job starts from (-1: none)
+    pool: np.ndarray  # (entries, n_y) NaN where the control's optimum is taken
+    pool_free: np.ndarray  # (entries, n_params) fitted parameters of each entry
+    pool_owner: np.ndarray  # (entries,) candidate index of each entry (-1: padding)
+    rank: np.ndarray  # (jobs,) which of its candidate's entries a job starts from (-1: none)
     # the control's extra starts (`Calibration.control_starts`): offsets of its search
     # coordinates from y0, the first row zero
-    restarts: jax.Array  # (1 + control_starts, names) or (0, names)
+    restarts: np.ndarray  # (1 + control_starts, names) or (0, names)
 
 
 def _refit(problem, y0, basis, steps: int, jacobian_every: int):
@@ -78,7 +79,7 @@ def settled(jobs: _Jobs, steps: int, jacobian_every: int) -> _Jobs:
     y, _ = _refit_control(
         jobs.problem, jobs.y0, jobs.frees[0], basis, 2 * int(steps), int(jacobian_every)
     )
-    return dataclasses.replace(jobs, y0=y)
+    return dataclasses.replace(jobs, y0=np.asarray(y))
 
 
 @program
@@ -247,7 +248,7 @@ def _point_of(problem, fit: FitResult) -> np.ndarray:
     if fit.sampling.warmup == float(problem.grid.t_start):
         return _fit_point(problem, fit)
     z = _coordinates(problem, fit.params, 0.0)
-    return np.asarray(start_point(problem, jnp.asarray(z))[0])
+    return np.asarray(start_point(problem, np.asarray(z, dtype=float))[0])
 
 
 def refit_groups(
@@ -290,17 +291,22 @@ def refit_groups(
     for g, w in zip(groups, levels):
         pad = n_jobs - len(g.owner)
         more = n_entries - g.pool.shape[0]
-        bases = jnp.pad(g.bases, ((0, 0), (0, width - g.bases.shape[1]), (0, 0)))
+        bases = np.pad(g.bases, ((0, 0), (0, width - g.bases.shape[1]), (0, 0)))
+
+        def padded(x, rows, fill):  # ``x`` with ``rows`` more rows of ``fill`` (its dtype)
+            more_rows = np.broadcast_to(np.asarray(fill, x.dtype), (rows, *x.shape[1:]))
+            return np.concatenate([x, more_rows])
+
         g = dataclasses.replace(
             g,
-            starts=jnp.concatenate([g.starts, jnp.full((pad, g.starts.shape[1]), jnp.nan)]),
-            frees=jnp.concatenate([g.frees, jnp.repeat(g.frees[:1], pad, axis=0)]),
-            bases=jnp.concatenate([bases, jnp.repeat(bases[:1], pad, axis=0)]),
+            starts=padded(g.starts, pad, np.nan),
+            frees=padded(g.frees, pad, g.frees[0]),
+            bases=padded(bases, pad, bases[0]),
             owner=g.owner + (-1,) * pad,
-            pool=jnp.concatenate([g.pool, jnp.full((more, g.pool.shape[1]), jnp.nan)]),
-            pool_free=jnp.concatenate([g.pool_free, jnp.repeat(g.frees[:1], more, axis=0)]),
-            pool_owner=jnp.concatenate([g.pool_owner, jnp.full(more, -1)]),
-            rank=jnp.concatenate([g.rank, jnp.full(pad, -1)]),
+            pool=padded(g.pool, more, np.nan),
+            pool_free=padded(g.pool_free, more, g.frees[0]),
+            pool_owner=padded(g.pool_owner, more, -1),
+            rank=padded(g.rank, pad, -1),
         )
         if w != result.sampling.warmup:
             g = settled(g, calibration.steps, calibration.jacobian_every)
@@ -416,16 +422,16 @@ def refit_jobs(
         bases[i, np.arange(idx.size), idx] = 1.0
     return _Jobs(
         problem,
-        jnp.asarray(y0),
-        jnp.asarray(np.array(starts)),
-        jnp.asarray(np.array(frees)),
-        jnp.asarray(bases),
+        np.asarray(y0),
+        np.array(starts),
+        np.array(frees),
+        bases,
         tuple(owner),
-        jnp.asarray(np.array(pool).reshape(len(pool), y0.size)),
-        jnp.asarray(np.array(pool_free).reshape(len(pool), len(names))),
-        jnp.asarray(np.array(pool_owner, dtype=np.int32)),
-        jnp.asarray(np.array(ranks, dtype=np.int32)),
-        jnp.asarray(restarts),
+        np.array(pool).reshape(len(pool), y0.size),
+        np.array(pool_free).reshape(len(pool), len(names)),
+        np.array(pool_owner, dtype=np.int32),
+        np.array(ranks, dtype=np.int32),
+        restarts,
     )
 
 
@@ -443,7 +449,7 @@ def _control_restarts(free: np.ndarray, calibration: Calibration) -> np.ndarray:
     return offsets
 
 
-def _control_basis(bases) -> jax.Array:
+def _control_basis(bases) -> np.ndarray:
     """The control's search directions alone (``bases[0]`` without the zero rows that pad
     it to the jobs' width): each row costs a Jacobian column at every step."""
     rows = np.any(np.asarray(bases[0]) != 0, axis=1)
@@ -480,8 +486,8 @@ def run_statistics(groups, data: np.ndarray, calibration: Calibration, n_cands: 
                 jobs.pool_free,
                 jobs.pool_owner,
                 jobs.rank,
-                jnp.asarray(jobs.owner, dtype=jnp.int32),
-                jnp.asarray(_members(jobs.owner, n_cands), dtype=jnp.int32),
+                np.asarray(jobs.owner, dtype=np.int32),
+                np.asarray(_members(jobs.owner, n_cands), dtype=np.int32),
             ),
             jobs.restarts,
         )

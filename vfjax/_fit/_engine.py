@@ -211,9 +211,16 @@ def _split(tree, devices):
 
 def _joined(parts):
     """The inverse of `_split`: the parts' array leaves joined along their leading axis, on
-    the default device."""
-    home = jax.devices()[0]
-    return jax.tree.map(lambda *xs: jnp.concatenate([jax.device_put(x, home) for x in xs]), *parts)
+    the host (NumPy arrays: a device concatenation would compile a program per shape), but
+    for random keys (on the default device)."""
+
+    def join(*xs):
+        if _is_key(xs[0]):
+            home = jax.devices()[0]
+            return jnp.concatenate([jax.device_put(x, home) for x in xs])
+        return np.concatenate([np.asarray(x) for x in xs])
+
+    return jax.tree.map(join, *parts)
 
 
 def side_by_side(calls: Sequence[Callable]) -> list:
@@ -511,7 +518,7 @@ def fit_many(
     stages = _stages(recordings, samplings)
     for frames in stages[:-1]:
         unended = np.array([n != r.n_frames for n, r in zip(frames, recordings)])
-        polished_at.append(jnp.asarray(np.r_[unended[owner], np.zeros(pad, bool)]))
+        polished_at.append(np.r_[unended[owner], np.zeros(pad, bool)])
         cut = [(dataclasses.replace(s, n_frames=n), t) for (s, t), n in zip(samplings, frames)]
         small = tuple(max(x) for x in zip(*(program_size(s) for s, _ in cut)))
         parts = zip(models, recordings, cut, hold, bounds, frames)
@@ -524,9 +531,11 @@ def fit_many(
             )[1]
         )
     swarm_batch = windows[0] if windows else batch
-    active = jnp.arange(n_fits + pad) < n_fits
-    lowers = jnp.stack([lo for lo, _ in boxes] + [boxes[0][0]] * pad)
-    uppers = jnp.stack([hi for _, hi in boxes] + [boxes[0][1]] * pad)
+    # the batch's arrays made on the host (on the device each would compile a program per
+    # batch size)
+    active = np.arange(n_fits + pad) < n_fits
+    lowers = stack_strong(*[lo for lo, _ in boxes], *[boxes[0][0]] * pad)
+    uppers = stack_strong(*[hi for _, hi in boxes], *[boxes[0][1]] * pad)
     # fit i's keys depend on i (and the restart) alone, not on the batch's size
     keys = [key[i] if per_fit_keys else jax.random.fold_in(key, i) for i in range(len(recordings))]
     keys = [k if r == 0 else jax.random.fold_in(k, r) for k in keys for r in range(restarts)]
@@ -579,12 +588,12 @@ def fit_many(
     # each swarm's best as a polish point (its profiled shift and S beside it) and its NMSE
     states = _joined(states)
     found = (
-        jnp.concatenate([states.global_position, states.global_aux], axis=1),
+        np.concatenate([states.global_position, states.global_aux], axis=1),
         states.global_cost,
     )
     n_y = problems[0].point_size
-    no_points = jnp.zeros((n_fits + pad, n_y), found[0].dtype)
-    from_swarm = jnp.zeros(n_fits + pad, bool)
+    no_points = np.zeros((n_fits + pad, n_y), found[0].dtype)
+    from_swarm = np.zeros(n_fits + pad, bool)
     if not windows:
         polished = polish_slices(batch, active, found, no_points, from_swarm, polish)
     else:
@@ -594,7 +603,7 @@ def fit_many(
         points, given = no_points, from_swarm
         for stage, on in zip(windows, polished_at):
             start = polish_slices(stage, active & on, found, points, given, polish)
-            points = jnp.where(on[:, None], start[2 if polish else 0], points)
+            points = np.where(on[:, None], start[2 if polish else 0], points)
             given = long
         polished = polish_slices(batch, active, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])

@@ -501,19 +501,20 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
     problem = Problem(
         model=model,
         grid=sampled_grid(sampling),
-        # placed, not converted: `jnp.asarray` of a NumPy array compiles a program per shape
-        measured=jax.device_put(measured),
-        counted=jax.device_put((np.arange(n_out) < recording.n_frames).astype(float)),
-        reference=jnp.asarray([values[n] for n in names]),
-        scale=jnp.asarray([(search_range(model, n) or (0.0, 1.0, 0.1))[2] for n in names]),
-        floor=jnp.asarray(floor),
-        ceiling=jnp.asarray(ceiling),
-        free=jnp.asarray(free),
-        linear=jnp.asarray([_is_linear(model, n, values[n], bounds) for n in names]),
+        # placed, not converted: `jnp.asarray` of a NumPy array or a list compiles a program
+        # per shape (the two scalars stay weakly typed, as a Python float makes them)
+        measured=_placed(measured),
+        counted=_placed((np.arange(n_out) < recording.n_frames).astype(float)),
+        reference=_placed([values[n] for n in names], float),
+        scale=_placed([(search_range(model, n) or (0.0, 1.0, 0.1))[2] for n in names], float),
+        floor=_placed(floor, float),
+        ceiling=_placed(ceiling, float),
+        free=_placed(free),
+        linear=_placed([_is_linear(model, n, values[n], bounds) for n in names], bool),
         s_reference=jnp.asarray(s_ref),
         period=jnp.asarray(period),
-        s_bounds=jnp.asarray(s_bounds),
-        difference=jax.device_put(difference),
+        s_bounds=_placed(s_bounds, float),
+        difference=_placed(difference),
         names=names,
         fit_s=fit_s,
         n_out=n_out,
@@ -521,4 +522,10 @@ def prepare(model, recording, params, sampling, period, bounds, held=(), size=No
         n_shifts=n_shifts,
         per_fold=bool(per_fold),
     )
-    return problem, jnp.asarray(lo), jnp.asarray(hi)
+    return problem, _placed(lo, float), _placed(hi, float)
+
+
+def _placed(values, dtype=None) -> jax.Array:
+    """Host values (a NumPy array, a list) as an array on the default device, without the
+    small conversion program that `jnp.asarray` of host data compiles per shape."""
+    return jax.device_put(np.asarray(values, dtype))

@@ -14,7 +14,6 @@ import dataclasses
 import math
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ..descriptors import noise_level
@@ -118,10 +117,10 @@ def settling(result: FitResult, recording: Recording, warmup_s: float | None = N
     # slice of two, the first from its point, the second from the grid's
     polished = polish_slices(
         jax.tree.map(stack_strong, *problems),
-        jnp.ones(2, bool),
-        (jnp.stack([grid[0], grid[0]]), jnp.stack([grid[1], grid[1]])),
-        jnp.stack([jnp.asarray(first), grid[0]]),
-        jnp.asarray([True, False]),
+        np.ones(2, bool),
+        tuple(np.stack([np.asarray(x)] * 2) for x in grid[:2]),
+        np.stack([first, np.asarray(grid[0])]),
+        np.array([True, False]),
         DEFAULT_POLISH,
     )
     errors = [float(c) for c in np.asarray(polished[3])]

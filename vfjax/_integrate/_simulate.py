@@ -230,10 +230,21 @@ def iteration_bucket(n_iter: int) -> int:
 _PER_FRAME = ("time", "area", "glottal_area", "displacement", "velocity", "phase")
 
 
-@eqx.filter_jit
 def _first_frames(sim: Simulation, n_frames: int) -> Simulation:
-    """``sim`` with its per-frame arrays cut to the first ``n_frames`` (one small program per
-    bucket and count, in place of a simulation's program per count)."""
+    """``sim`` with its per-frame arrays cut to the first ``n_frames``: on the host where they
+    are concrete and uncommitted (no program), else by `_first_frames_traced`."""
+    arrays = [getattr(sim, f) for f in _PER_FRAME]
+    if any(isinstance(x, jax.core.Tracer) or x.committed for x in arrays):
+        return _first_frames_traced(sim, n_frames)
+    cut = [jax.device_put(np.asarray(x)[:n_frames]) for x in arrays]
+    return eqx.tree_at(lambda s: [getattr(s, f) for f in _PER_FRAME], sim, cut)
+
+
+@eqx.filter_jit
+def _first_frames_traced(sim: Simulation, n_frames: int) -> Simulation:
+    """`_first_frames` as a program (under a transformation, or for arrays committed to a
+    device): one small program per bucket and count, in place of a simulation's program
+    per count."""
     return eqx.tree_at(
         lambda s: [getattr(s, f) for f in _PER_FRAME],
         sim,
