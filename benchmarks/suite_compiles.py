@@ -109,6 +109,13 @@ def summarise(folder: pathlib.Path, top: int = 25) -> None:
                 by_test[test][1] += seconds
             else:
                 by_test[test][2] += seconds
+    small = [0, 0.0]  # compilations of under 0.5 s: array operations, tiny programs
+    for path in sorted(folder.glob("*.tsv")):
+        for line in path.read_text(encoding="utf-8").splitlines():
+            kind, _, _, seconds = line.split("\t")
+            if kind == "compile" and float(seconds) < 0.5:
+                small[0] += 1
+                small[1] += float(seconds)
     compiled = sum(s for _, s in by_program.values())
     count = sum(n for n, _ in by_program.values())
     tested = sum(t for *_, t in by_test.values())
@@ -116,6 +123,7 @@ def summarise(folder: pathlib.Path, top: int = 25) -> None:
         f"{count} compilations, {compiled:.0f} s of XLA compilation in {tested:.0f} s of tests "
         f"(worker-seconds): {compiled / max(tested, 1e-9):.0%}"
     )
+    print(f"of which {small[0]} compilations of under 0.5 s each, {small[1]:.0f} s together")
     print("\nby program (compile seconds, compilations), those of 1 s or more:")
     for name, (n, s) in sorted(by_program.items(), key=lambda kv: -kv[1][1]):
         if s >= 1.0:
