@@ -191,34 +191,50 @@ def _is_key(x) -> bool:
     return isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
 
 
+def _host(x) -> np.ndarray:
+    """``x`` as a NumPy array; typed random keys as their key data (uint32)."""
+    return np.asarray(jax.random.key_data(x)) if _is_key(x) else np.asarray(x)
+
+
+def _placed_like(data: np.ndarray, like, device=None) -> jax.Array:
+    """Host ``data`` on ``device`` (default: the default device, uncommitted), as typed
+    random keys of ``like``'s implementation where ``like`` holds keys (`_host`'s inverse).
+    Neither step compiles a program."""
+    on_device = jax.device_put(data, device)
+    if _is_key(like):
+        return jax.random.wrap_key_data(on_device, impl=jax.random.key_impl(like))
+    return on_device
+
+
 def _split(tree, devices):
     """``tree``'s array leaves cut along their leading axis into ``len(devices)`` equal
     consecutive parts, the k-th placed on ``devices[k]`` (a device may be listed more than
-    once; its other leaves as they are)."""
+    once; its other leaves as they are). Cut on the host, random keys as their key data: a
+    device slice would compile a program per shape."""
     n = len(devices)
-    # cut on the host (a device slice would compile a program per shape), but for random keys
-    tree = jax.tree.map(lambda x: np.asarray(x) if eqx.is_array(x) and not _is_key(x) else x, tree)
+    leaves, treedef = jax.tree.flatten(tree)
+    host = [_host(x) if eqx.is_array(x) else None for x in leaves]
 
     def part(k):
-        def cut(x):
-            size = x.shape[0] // n
-            return x[k * size : (k + 1) * size] if eqx.is_array(x) else x
+        def cut(x, data):
+            if data is None:
+                return x
+            size = data.shape[0] // n
+            return _placed_like(data[k * size : (k + 1) * size], x, devices[k])
 
-        return placed(jax.tree.map(cut, tree), devices[k])
+        return jax.tree.unflatten(treedef, [cut(x, d) for x, d in zip(leaves, host)])
 
     return [part(k) for k in range(n)]
 
 
 def _joined(parts):
-    """The inverse of `_split`: the parts' array leaves joined along their leading axis, on
-    the host (NumPy arrays: a device concatenation would compile a program per shape), but
-    for random keys (on the default device)."""
+    """The inverse of `_split`: the parts' array leaves joined along their leading axis on the
+    host, as NumPy arrays (a device concatenation would compile a program per shape); random
+    keys as keys on the default device."""
 
     def join(*xs):
-        if _is_key(xs[0]):
-            home = jax.devices()[0]
-            return jnp.concatenate([jax.device_put(x, home) for x in xs])
-        return np.concatenate([np.asarray(x) for x in xs])
+        data = np.concatenate([_host(x) for x in xs])
+        return _placed_like(data, xs[0]) if _is_key(xs[0]) else data
 
     return jax.tree.map(join, *parts)
 
@@ -242,11 +258,8 @@ def stack_strong(*xs):
     """The leaves stacked, without JAX's weak type (a leaf built from a Python float is
     weakly typed, one set by `VocalFoldModel.set` is not): a batch's program must not depend
     on how its models were made. Stacked on the host (a device stack would compile a program
-    per shape and count), but for random keys."""
-    if any(_is_key(x) for x in xs):
-        stacked = jnp.stack(xs)
-        return stacked.astype(stacked.dtype)
-    return jax.device_put(np.stack([np.asarray(x) for x in xs]))
+    per shape and count), random keys as their key data."""
+    return _placed_like(np.stack([_host(x) for x in xs]), xs[0])
 
 
 def batch_bucket(n_fits: int) -> int:
@@ -537,9 +550,13 @@ def fit_many(
     lowers = stack_strong(*[lo for lo, _ in boxes], *[boxes[0][0]] * pad)
     uppers = stack_strong(*[hi for _, hi in boxes], *[boxes[0][1]] * pad)
     # fit i's keys depend on i (and the restart) alone, not on the batch's size
-    keys = [key[i] if per_fit_keys else jax.random.fold_in(key, i) for i in range(len(recordings))]
+    if per_fit_keys:
+        given = _host(key)  # fit i's key, read on the host (a device index compiles)
+        keys = [_placed_like(given[i], key) for i in range(len(recordings))]
+    else:
+        keys = [jax.random.fold_in(key, i) for i in range(len(recordings))]
     keys = [k if r == 0 else jax.random.fold_in(k, r) for k in keys for r in range(restarts)]
-    keys = jnp.stack(keys + [keys[0]] * pad)
+    keys = stack_strong(*keys, *[keys[0]] * pad)
     program = swarm.program()
 
     show = progress if progress is not None else (swarm.iterations > 20 and sys.stderr.isatty())

@@ -26,7 +26,7 @@ from jaxtyping import Array
 from ..model import VocalFoldModel
 from ..presets import PRESSURE_KEY, initial_model
 from ..recording import Recording
-from ._engine import fit_many, refuse_batch_options
+from ._engine import fit_many, refuse_batch_options, stack_strong
 from ._problem import plausible_range
 from ._result import FitResult
 from ._settling import SETTLING_WARMUP, settling
@@ -189,7 +189,7 @@ def fit_recordings(
         params, hold = tuple(params), None
     boxes = [{**first_fit_bounds(m, params), **(bounds or {})} for m in models]
     key = jax.random.key(0) if key is None else key
-    keys = jax.numpy.stack([jax.random.fold_in(key, 0)] * len(recordings))
+    keys = stack_strong(*[jax.random.fold_in(key, 0)] * len(recordings))
     results = fit_many(
         models, recordings, params, bounds=boxes, restarts=restarts, key=keys, hold=hold, **options
     )
