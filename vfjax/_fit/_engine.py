@@ -551,8 +551,8 @@ def fit_many(
     uppers = stack_strong(*[hi for _, hi in boxes], *[boxes[0][1]] * pad)
     # fit i's keys depend on i (and the restart) alone, not on the batch's size
     if per_fit_keys:
-        given = _host(key)  # fit i's key, read on the host (a device index compiles)
-        keys = [_placed_like(given[i], key) for i in range(len(recordings))]
+        key_data = _host(key)  # fit i's key read on the host (a device index compiles)
+        keys = [_placed_like(key_data[i], key) for i in range(len(recordings))]
     else:
         keys = [jax.random.fold_in(key, i) for i in range(len(recordings))]
     keys = [k if r == 0 else jax.random.fold_in(k, r) for k in keys for r in range(restarts)]
