@@ -97,6 +97,7 @@ def summarise(folder: pathlib.Path, top: int = 25) -> None:
     """Print the tables of the logs in ``folder``."""
     by_program = collections.defaultdict(lambda: [0, 0.0])
     by_test = collections.defaultdict(lambda: [0, 0.0, 0.0])  # compilations, seconds, test time
+    small = [0, 0.0]  # compilations of under 0.5 s: array operations, tiny programs
     for path in sorted(folder.glob("*.tsv")):
         for line in path.read_text(encoding="utf-8").splitlines():
             kind, test, name, seconds = line.split("\t")
@@ -107,15 +108,11 @@ def summarise(folder: pathlib.Path, top: int = 25) -> None:
                 program[1] += seconds
                 by_test[test][0] += 1
                 by_test[test][1] += seconds
+                if seconds < 0.5:
+                    small[0] += 1
+                    small[1] += seconds
             else:
                 by_test[test][2] += seconds
-    small = [0, 0.0]  # compilations of under 0.5 s: array operations, tiny programs
-    for path in sorted(folder.glob("*.tsv")):
-        for line in path.read_text(encoding="utf-8").splitlines():
-            kind, _, _, seconds = line.split("\t")
-            if kind == "compile" and float(seconds) < 0.5:
-                small[0] += 1
-                small[1] += float(seconds)
     compiled = sum(s for _, s in by_program.values())
     count = sum(n for n, _ in by_program.values())
     tested = sum(t for *_, t in by_test.values())

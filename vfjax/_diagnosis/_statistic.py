@@ -292,21 +292,16 @@ def refit_groups(
         pad = n_jobs - len(g.owner)
         more = n_entries - g.pool.shape[0]
         bases = np.pad(g.bases, ((0, 0), (0, width - g.bases.shape[1]), (0, 0)))
-
-        def padded(x, rows, fill):  # ``x`` with ``rows`` more rows of ``fill`` (its dtype)
-            more_rows = np.broadcast_to(np.asarray(fill, x.dtype), (rows, *x.shape[1:]))
-            return np.concatenate([x, more_rows])
-
         g = dataclasses.replace(
             g,
-            starts=padded(g.starts, pad, np.nan),
-            frees=padded(g.frees, pad, g.frees[0]),
-            bases=padded(bases, pad, bases[0]),
+            starts=_padded(g.starts, pad, np.nan),
+            frees=_padded(g.frees, pad, g.frees[0]),
+            bases=_padded(bases, pad, bases[0]),
             owner=g.owner + (-1,) * pad,
-            pool=padded(g.pool, more, np.nan),
-            pool_free=padded(g.pool_free, more, g.frees[0]),
-            pool_owner=padded(g.pool_owner, more, -1),
-            rank=padded(g.rank, pad, -1),
+            pool=_padded(g.pool, more, np.nan),
+            pool_free=_padded(g.pool_free, more, g.frees[0]),
+            pool_owner=_padded(g.pool_owner, more, -1),
+            rank=_padded(g.rank, pad, -1),
         )
         if w != result.sampling.warmup:
             g = settled(g, calibration.steps, calibration.jacobian_every)
@@ -447,6 +442,12 @@ def _control_restarts(free: np.ndarray, calibration: Calibration) -> np.ndarray:
     offsets = np.zeros((1 + count, free.size))
     offsets[1:, free] = (2.0 * unit - 1.0) * calibration.control_spread
     return offsets
+
+
+def _padded(x: np.ndarray, rows: int, fill) -> np.ndarray:
+    """``x`` with ``rows`` more rows of ``fill`` (a value or a row), in ``x``'s dtype."""
+    more_rows = np.broadcast_to(np.asarray(fill, x.dtype), (rows, *x.shape[1:]))
+    return np.concatenate([x, more_rows])
 
 
 def _control_basis(bases) -> np.ndarray:
