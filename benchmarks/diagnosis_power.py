@@ -32,7 +32,8 @@ each size of `ORACLE_SIZES`, both subjects and noises, seed 0, and prints its ta
 results file, ``diagnosis_oracle.jsonl`` by default).
 
 Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none|cohort-none]
-[--strength weak|medium|strong] [--seed S] [--limit N] [--pool N] [--warmup S] [--oracle]
+[--strength weak|medium|strong] [--seed S] [--limit N] [--pool N] [--search-nulls N|all]
+[--warmup S] [--oracle]
 """
 
 import argparse
@@ -65,6 +66,8 @@ CLOSURE_JITTER = 0.003
 #: Simulated time before a recording's first frame (s): sustained phonation. Every effect's
 #: oscillation has settled by then; a cubic stiffness's amplitude drifts for more than 0.2 s.
 WARMUP = 0.5
+#: `vfjax.Calibration`'s default count of null recordings searched alike (`--search-nulls`).
+DEFAULT_SEARCH_NULLS = vfjax.Calibration().search_nulls
 #: effect -> (parameter, weak, medium, strong, how to build it). Chosen by the oracle fall
 #: (`--oracle`, benchmarks/README.md): the weak strength removes a tenth to a third of the
 #: first fit's error (median over subjects and noises), the medium about half or more
@@ -244,6 +247,7 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         if d.calibrated is not None
         else None,
         "pool": calibration.pool,
+        "search_nulls": calibration.search_nulls,
         "warmup": warmup,
     }
     if effect is not None:
@@ -333,14 +337,19 @@ def unconfirmed(rows, effect) -> str:
     return f"{true}/{sum(bool(r['unconfirmed']) for r in told)} of {len(told)}"
 
 
-def read_rows(out: pathlib.Path, warmup) -> list[dict]:
+def read_rows(out: pathlib.Path, warmup, search_nulls=DEFAULT_SEARCH_NULLS) -> list[dict]:
     """The rows of a JSON-lines results file (none where it is missing); ValueError where it
-    holds rows of another warm-up (s), which a run must not mix or skip as done."""
+    holds rows of another warm-up (s) or another count of null recordings searched alike
+    (``search_nulls``, None for all), which a run must not mix or skip as done."""
     rows = [json.loads(x) for x in out.read_text().splitlines() if x] if out.exists() else []
     other = {r.get("warmup") for r in rows} - {warmup}
     if other:
         held = sorted(other, key=str)
         raise ValueError(f"{out} holds rows of another --warmup ({held}): use another --out")
+    searched = {r.get("search_nulls", DEFAULT_SEARCH_NULLS) for r in rows} - {search_nulls}
+    if searched:
+        held = sorted(searched, key=str)
+        raise ValueError(f"{out} holds rows of another --search-nulls ({held}): use another --out")
     return rows
 
 
@@ -397,6 +406,11 @@ def main():
         "--pool", type=int, default=0, help="vfjax.Calibration's pool (default 0: none)"
     )
     ap.add_argument(
+        "--search-nulls",
+        default=str(DEFAULT_SEARCH_NULLS),
+        help="vfjax.Calibration's search_nulls: a count, or 'all' (default %(default)s)",
+    )
+    ap.add_argument(
         "--warmup",
         type=float,
         default=WARMUP,
@@ -410,11 +424,12 @@ def main():
         help="measure the oracle fall of every effect at the sizes of ORACLE_SIZES instead",
     )
     args = ap.parse_args()
+    search_nulls = None if args.search_nulls == "all" else int(args.search_nulls)
     use_cpu_cores(None)
     default = "diagnosis_oracle.jsonl" if args.oracle else "diagnosis_power.jsonl"
     out = pathlib.Path(args.out or default)
     try:
-        rows = read_rows(out, args.warmup)
+        rows = read_rows(out, args.warmup, search_nulls)
     except ValueError as e:
         ap.error(str(e))
     if args.oracle:
@@ -429,7 +444,8 @@ def main():
     if args.strength:
         todo = [c for c in todo if c[3] is None or STRENGTHS[c[3]] == args.strength]
     for case in todo[: args.limit]:
-        row = run_case(case, vfjax.Calibration(pool=args.pool), args.warmup)
+        calibration = vfjax.Calibration(pool=args.pool, search_nulls=search_nulls)
+        row = run_case(case, calibration, args.warmup)
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")
         rows.append(row)

@@ -952,3 +952,20 @@ def test_outputs_have_the_permissions_of_any_file_the_user_writes(tmp_path):
     for entry in (out, out / "figures", folder):
         assert entry.stat().st_mode & 0o777 == 0o755, entry
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cohort", "out", "report.md"]
+
+
+def test_the_null_recordings_searched_alike_are_a_command_line_option():
+    """``--search-nulls`` of `vfjax diagnose` and `vfjax cohort`: a count, or ``all`` (every
+    null recording, `vfjax.Calibration(search_nulls=None)`); the default is the
+    calibration's; a negative count or a word is refused with argparse's exit code 2."""
+    from vfjax.cli import _calibration, build_parser
+
+    parse = build_parser().parse_args
+    default = vfjax.Calibration().search_nulls
+    assert _calibration(parse(["diagnose", "r.csv"])).search_nulls == default
+    assert _calibration(parse(["diagnose", "r.csv", "--search-nulls", "all"])).search_nulls is None
+    assert _calibration(parse(["cohort", "d", "--search-nulls", "40"])).search_nulls == 40
+    for bad in ("-1", "many"):
+        with pytest.raises(SystemExit) as refused:
+            parse(["diagnose", "r.csv", "--search-nulls", bad])
+        assert refused.value.code == 2

@@ -580,11 +580,10 @@ def test_the_statistics_control_reaches_the_paper_models_best_on_wandering_null_
     """Twelve null recordings of a demo N1's fit (201 frames at 4 kHz, 3 px) whose timing
     wanders (a walk of the periods, 20 us a cycle): the statistic's control (a cubic
     stiffness the one candidate) ends within 5 % of a full fit of the paper's model on each
-    (`vfjax.fit`, four restarts), the independent best. Without the control's extra starts
-    (`Calibration.control_starts`), a walk can move the paper model's best into a basin
-    that the steps from the null recording's truth do not reach: on at least one of these
-    twelve, the control then ends 30 % or more above it (null 9: 0.057 % against 0.033 %),
-    the fall a candidate would be credited with."""
+    (`vfjax.fit`, four restarts), the independent best, so that no candidate is credited
+    with a fall that the paper's model itself can make. (A walk can move the paper model's
+    best into a basin that the steps from the null recording's truth do not reach; the
+    control's extra starts, `Calibration.control_starts`, are there for it.)"""
     from vfjax._diagnosis import _statistic as C
     from vfjax._diagnosis._candidates import as_candidates
     from vfjax._fit._problem import prepare
@@ -596,10 +595,8 @@ def test_the_statistics_control_reaches_the_paper_models_best_on_wandering_null_
     source = _NullSource(own, fit.model, fit.time_shift, rec, period, seed=0)
     cands = as_candidates(fit.model, [vfjax.CubicStiffness])
     nulls = source.draw(12, Spreads(period=2e-5))
-    controls = {}
-    for starts in (0, 16):
-        groups = C.refit_groups(fit, rec, cands, None, Calibration(control_starts=starts))
-        controls[starts] = C.run_statistics(groups, nulls, Calibration(), 1)[0][:, 0]
+    groups = C.refit_groups(fit, rec, cands, None, Calibration())
+    controls = C.run_statistics(groups, nulls, Calibration(), 1)[0][:, 0]
     best = np.array(
         [
             vfjax.fit(
@@ -613,5 +610,4 @@ def test_the_statistics_control_reaches_the_paper_models_best_on_wandering_null_
             for row in nulls
         ]
     )
-    assert np.all(controls[16] <= 1.05 * best), controls[16] / best
-    assert np.max(controls[0] / best) > 1.3, controls[0] / best
+    assert np.all(controls <= 1.05 * best), controls / best

@@ -292,6 +292,17 @@ def test_shared_gap_case(shared_dir, capsys):
     assert f"(NMSE 0.100% against 4.000%; tau = {tau:.4g})" in text
     words = Investigation(rec.name, [Round(result, nothing, None, None)]).outcome(rec).words
     assert "the search's refits with MucosalDelay fit better but are unconfirmed" in words
+    # searched alike on too few of the null recordings to decide: the verdict says how to
+    # decide it (all of them searched)
+    cal, n = d.calibrated, d.calibrated.replicates
+    few = tuple(5 if c == "MucosalDelay" else 0 for c in cal.candidates)
+    some = dataclasses.replace(nothing, calibrated=dataclasses.replace(cal, searched_nulls=few))
+    assert (
+        "searched alike, 5 of the null recordings fell short of it, too few to decide "
+        f"(searching all {n} decides it, at a search per null recording: "
+        "vfjax.Calibration(search_nulls=None), vfjax diagnose --search-nulls all)"
+    ) in verdict_text(some)
+    assert "searching all" not in verdict_text(nothing)  # (not searched alike: no count)
 
 
 @pytest.mark.slow

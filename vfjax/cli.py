@@ -264,7 +264,7 @@ def cmd_diagnose(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from ._diagnosis import Calibration, Criteria, investigate
+    from ._diagnosis import Criteria, investigate
     from .io import check_output_folder, staged_output
     from .presets import initial_model
     from .report import write_report
@@ -281,7 +281,7 @@ def cmd_diagnose(args) -> int:
             restarts=args.restarts,
             warmup=args.warmup,
             criteria=Criteria(alpha=args.alpha),
-            calibration=Calibration(replicates=args.replicates, seed=args.seed),
+            calibration=_calibration(args),
             swarm=Swarm(iterations=args.iterations),
             candidates=diagnosis_candidates(args.also),
             progress=True,
@@ -299,7 +299,7 @@ def cmd_cohort(args) -> int:
 
     matplotlib.use("Agg")
     from ._cohort import CohortOptions, cohort
-    from ._diagnosis import Calibration, Criteria
+    from ._diagnosis import Criteria
 
     options = CohortOptions(
         diagnose=not args.fits_only,
@@ -307,7 +307,7 @@ def cmd_cohort(args) -> int:
         restarts=args.restarts,
         swarm=Swarm(size=args.particles, iterations=args.iterations),
         criteria=Criteria(alpha=args.alpha),
-        calibration=Calibration(replicates=args.replicates, seed=args.seed),
+        calibration=_calibration(args),
         candidates=diagnosis_candidates(args.also),
         batch=args.batch,
         seed=args.seed,
@@ -452,6 +452,26 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _search_nulls(text: str) -> int | None:
+    """``--search-nulls``: a count of null recordings (>= 0) or ``all`` (None)."""
+    if text.strip().lower() == "all":
+        return None
+    try:
+        count = int(text)
+    except ValueError:
+        count = -1
+    if count < 0:
+        raise argparse.ArgumentTypeError(f"expected a count >= 0 or 'all', got {text!r}")
+    return count
+
+
+def _calibration(args):
+    """The `vfjax.Calibration` of a diagnosis's command-line options."""
+    from ._diagnosis import Calibration
+
+    return Calibration(replicates=args.replicates, seed=args.seed, search_nulls=args.search_nulls)
+
+
 def _diagnosis_arguments(parser) -> None:
     """The options of a diagnosis (``diagnose``, ``cohort``): the first fit's restarts and
     swarm, the rounds, the level, the null recordings and the effects offered beside the
@@ -475,6 +495,16 @@ def _diagnosis_arguments(parser) -> None:
         default=111,
         help="most null recordings simulated to calibrate the verdicts; the smallest "
         "p-value is 1 / (1 + replicates) (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--search-nulls",
+        type=_search_nulls,
+        default=19,
+        metavar="N|all",
+        help="where an effect's search passes while its refit from fixed starts does not, "
+        "search at most this many null recordings alike ('all': every one, which decides "
+        "it either way at a search per null recording; default: %(default)s, which may "
+        "leave it unconfirmed)",
     )
     parser.add_argument(
         "--seed", type=int, default=0, help="seed of the null recordings (a cohort's fits too)"

@@ -353,6 +353,11 @@ def _unconfirmed_text(d: Diagnosis) -> list[str]:
         if counts and max(counts) > 0
         else "the null recordings were not searched alike"
     )
+    if counts and 0 < max(counts) < cal.replicates:  # (searched: more can decide it)
+        searched += (
+            f" (searching all {cal.replicates} decides it, at a search per null recording: "
+            "vfjax.Calibration(search_nulls=None), vfjax diagnose --search-nulls all)"
+        )
     return [
         f"Unconfirmed: the search's refits with {listed} reach errors that the calibrated "
         "refits, made from fixed starts on the recording as on every null recording, do "
