@@ -46,7 +46,7 @@ import time
 import numpy as np
 
 import vfjax
-from vfjax.cli import use_cpu_cores
+from vfjax.cli import _search_nulls, use_cpu_cores
 from vfjax.datasets import demo_recording, demo_span, factors_duration
 
 FPS = 4000.0
@@ -407,7 +407,9 @@ def main():
     )
     ap.add_argument(
         "--search-nulls",
-        default=str(DEFAULT_SEARCH_NULLS),
+        type=_search_nulls,
+        default=DEFAULT_SEARCH_NULLS,
+        metavar="N|all",
         help="vfjax.Calibration's search_nulls: a count, or 'all' (default %(default)s)",
     )
     ap.add_argument(
@@ -424,12 +426,11 @@ def main():
         help="measure the oracle fall of every effect at the sizes of ORACLE_SIZES instead",
     )
     args = ap.parse_args()
-    search_nulls = None if args.search_nulls == "all" else int(args.search_nulls)
     use_cpu_cores(None)
     default = "diagnosis_oracle.jsonl" if args.oracle else "diagnosis_power.jsonl"
     out = pathlib.Path(args.out or default)
     try:
-        rows = read_rows(out, args.warmup, search_nulls)
+        rows = read_rows(out, args.warmup, args.search_nulls)
     except ValueError as e:
         ap.error(str(e))
     if args.oracle:
@@ -444,7 +445,7 @@ def main():
     if args.strength:
         todo = [c for c in todo if c[3] is None or STRENGTHS[c[3]] == args.strength]
     for case in todo[: args.limit]:
-        calibration = vfjax.Calibration(pool=args.pool, search_nulls=search_nulls)
+        calibration = vfjax.Calibration(pool=args.pool, search_nulls=args.search_nulls)
         row = run_case(case, calibration, args.warmup)
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")

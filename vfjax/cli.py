@@ -476,6 +476,8 @@ def _diagnosis_arguments(parser) -> None:
     """The options of a diagnosis (``diagnose``, ``cohort``): the first fit's restarts and
     swarm, the rounds, the level, the null recordings and the effects offered beside the
     catalogue's."""
+    from ._diagnosis import Calibration
+
     parser.add_argument(
         "--restarts",
         type=int,
@@ -499,7 +501,7 @@ def _diagnosis_arguments(parser) -> None:
     parser.add_argument(
         "--search-nulls",
         type=_search_nulls,
-        default=19,
+        default=Calibration().search_nulls,
         metavar="N|all",
         help="where an effect's search passes while its refit from fixed starts does not, "
         "search at most this many null recordings alike ('all': every one, which decides "

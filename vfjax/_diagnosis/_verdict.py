@@ -348,12 +348,13 @@ def _unconfirmed_text(d: Diagnosis) -> list[str]:
         for n in names
         if cal is not None and cal.searched_nulls
     }
+    most = max(counts, default=0)
     searched = (
-        f"searched alike, {max(counts)} of the null recordings fell short of it, too few to decide"
-        if counts and max(counts) > 0
+        f"searched alike, {most} of the null recordings fell short of it, too few to decide"
+        if most > 0
         else "the null recordings were not searched alike"
     )
-    if counts and 0 < max(counts) < cal.replicates:  # (searched: more can decide it)
+    if 0 < most < cal.replicates:  # (searched: more can decide it)
         searched += (
             f" (searching all {cal.replicates} decides it, at a search per null recording: "
             "vfjax.Calibration(search_nulls=None), vfjax diagnose --search-nulls all)"
