@@ -150,6 +150,9 @@ def test_bad_arguments_are_refused(shared_dir):
         vfjax.Criteria(alpha=0.0)
     with pytest.raises(ValueError, match="confirm_iterations"):
         vfjax.RefitPlan(confirm_iterations=0)
+    for polished in (0, 1.5, True):
+        with pytest.raises(ValueError, match="polished"):
+            vfjax.RefitPlan(polished=polished)
     with pytest.raises(TypeError, match="Criteria"):
         vfjax.diagnose(result, rec, criteria=0.01)
     with pytest.raises(TypeError, match="RefitPlan"):

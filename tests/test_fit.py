@@ -442,6 +442,39 @@ def test_a_fit_in_a_batch_equals_the_fit_alone(three_in_a_batch):
         assert r.nmse == pytest.approx(float(vfjax.nmse(rec.area, r.fitted_gaw())), rel=1e-9)
 
 
+@_WITH_THREE_IN_A_BATCH
+def test_a_contest_polishes_the_best_swarms_of_each_group_as_they_are_polished_alone(
+    three_in_a_batch,
+):
+    """Three swarms of one recording and one of another, in two groups, of which the two
+    best swarms of each are polished (as a diagnosis's refit polishes the best of a job's
+    starts): the polished fits are those of the swarms that ended lowest and equal the same
+    fits in a batch that polishes all; the others end as their swarms ended."""
+    from vfjax._fit._engine import fit_batch
+
+    truth = vfjax.preset("N1")
+    recs = three_in_a_batch[0]
+    batch = [recs[0]] * 3 + [recs[1]]
+    options = dict(swarm=_BATCH_SWARM, key=jax.random.key(_BATCH_KEY), progress=False)
+    every = fit_many(_start(truth), batch, **options)
+    two = fit_batch(_start(truth), batch, contest=([0, 0, 0, 1], 2), **options)
+    swarm_best = [f.pso_trace[-1] for f in every]
+    left_out = int(np.argmax(swarm_best[:3]))
+    for i, (a, b) in enumerate(zip(every, two)):
+        assert b.pso_trace == a.pso_trace  # the swarms do not depend on the contest
+        if i == left_out:
+            assert b.optimistix_result == "not run"
+            assert b.nmse == swarm_best[i]
+            assert b.nmse >= max(f.nmse for k, f in enumerate(two[:3]) if k != i)
+        else:
+            assert b.optimistix_result != "not run"
+            assert b.nmse == pytest.approx(a.nmse, rel=1e-9)
+            assert b.params == pytest.approx(a.params, rel=1e-9)
+            assert b.nmse < swarm_best[i]  # the polish gained
+    with pytest.raises(ValueError, match="contest"):
+        fit_batch(_start(truth), batch, contest=([0, 1], 2), **options)
+
+
 _ON_TWO_DEVICES = """
 import collections, json, logging, re, sys
 import jax

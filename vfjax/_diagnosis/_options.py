@@ -49,6 +49,10 @@ class RefitPlan(eqx.Module):
         polish: the refits' polish.
         box: the fitted parameters are searched within this factor of their current values
             (and of the starting model's, and of every start's).
+        polished: of a refit's swarms (one per start), how many are polished: those that
+            ended lowest (None: all). The polish costs most of a refit (a modulation's
+            refit has 19 starts); the best refit is nearly always among the four best
+            swarms (benchmarks/README.md).
         confirm_iterations: swarm iterations of the confirming refits: of the control
             (before the calibration, which simulates from the best fit without any effect)
             and of the effect to add with the control again (the most significant candidate,
@@ -65,6 +69,7 @@ class RefitPlan(eqx.Module):
     swarm: Swarm = Swarm(size=24, iterations=30)
     polish: Polish = Polish(max_steps=30)
     box: float = eqx.field(default=1.6, converter=float)
+    polished: int | None = 4
     confirm_iterations: int | None = 100
     confirm_swarms: int = eqx.field(default=3, converter=int)
     batch: int = eqx.field(default=64, converter=int)
@@ -79,6 +84,9 @@ class RefitPlan(eqx.Module):
             raise TypeError("RefitPlan: swarm must be a vfjax.Swarm and polish a vfjax.Polish")
         if not self.box > 1:
             raise ValueError(f"RefitPlan: box must be a factor > 1, got {self.box}")
+        p = self.polished
+        if p is not None and (isinstance(p, bool) or not isinstance(p, int) or p < 1):
+            raise ValueError(f"RefitPlan: polished must be a positive integer or None, got {p!r}")
         c = self.confirm_iterations
         if c is not None and (isinstance(c, bool) or not isinstance(c, int) or c < 1):
             raise ValueError(

@@ -7,7 +7,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._fit import FitResult, fit_many, search_range
+from .._fit import FitResult, search_range
+from .._fit._engine import fit_batch
 from .._fit._problem import PLAUSIBLE, plausible_range
 from ..presets import initial_model
 from ..recording import Recording
@@ -96,7 +97,8 @@ def refit_with(
     ``plan.box`` of their current values, of their ``anchor`` values if given (e.g. the
     fit's starting model: an effect that changes the dynamics, such as the flow separation,
     can move K and C_f far from a fit made without it) and of the starts' values; then the
-    polish (``plan.polish``). `refit_each` runs several candidates' refits as one batch.
+    polish (``plan.polish``) of the ``plan.polished`` swarms that ended lowest. `refit_each`
+    runs several candidates' refits as one batch.
     """
     return refit_each(result, recording, [(candidate, starts)], plan, anchor=anchor)[0]
 
@@ -115,7 +117,8 @@ def refit_each(
     """`refit_with` for several candidates at once: ``jobs`` is a list of ``(candidate or
     None, starts)``; returns the best refit of each job.
 
-    All jobs run as one `vfjax.fit_many` batch (padded to ``plan.batch`` fits), so that one
+    All jobs run as one batch of `vfjax.fit_many`'s engine (padded to ``plan.batch`` fits;
+    of each job's swarms the ``plan.polished`` that end lowest are polished), so that one
     compiled program serves them all: every start simulates the fitted model extended by all
     the ``family``'s candidates (default: the jobs'), those not its own held at their
     off-values (where they change nothing). Every refit of a diagnosis passes the same
@@ -184,7 +187,7 @@ def refit_each(
     swarm = plan.swarm
     if iterations is not None:
         swarm = dataclasses.replace(swarm, iterations=iterations)
-    fits = fit_many(
+    fits = fit_batch(
         models,
         [recordings[j] for j in owner],
         params=union,
@@ -195,6 +198,7 @@ def refit_each(
         bounds=bounds,
         hold=holds,
         min_batch=plan.batch,
+        contest=None if plan.polished is None else (owner, plan.polished),
     )
     best = []
     for j, c in enumerate(cands):

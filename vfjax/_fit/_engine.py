@@ -352,6 +352,21 @@ def _polish_batch(batch, active, found, points, from_point, polish: Polish | Non
     return jax.lax.map(one, (batch, active, found, points, from_point))
 
 
+def _contenders(costs, owner, groups, best: int) -> np.ndarray:
+    """Which fits of a padded batch are polished: of each group, the ``best`` whose swarms
+    ended lowest (``costs``: each fit's swarm's best NMSE, padding included; ``owner``: each
+    real fit's recording; ``groups``: a group number per recording). Ties and non-finite
+    costs go by order; padding fits are never chosen."""
+    costs = np.asarray(costs)
+    group = np.asarray(groups)[np.asarray(owner)]
+    chosen = np.zeros(costs.shape[0], bool)
+    for g in np.unique(group):
+        members = np.flatnonzero(group == g)
+        rank = np.where(np.isfinite(costs[members]), costs[members], np.inf)
+        chosen[members[np.argsort(rank, kind="stable")[:best]]] = True
+    return chosen
+
+
 def _result_name(codes, index) -> str:
     """The optimistix result of member ``index`` of the polish's codes (`result_index`) as a
     plain string."""
@@ -461,6 +476,47 @@ def fit_many(
     Returns:
         One `FitResult` per recording (timings are those of the whole batch).
     """
+    return fit_batch(
+        model,
+        recordings,
+        params,
+        bounds=bounds,
+        swarm=swarm,
+        polish=polish,
+        warmup=warmup,
+        substeps=substeps,
+        key=key,
+        hold=hold,
+        progress=progress,
+        callback=callback,
+        restarts=restarts,
+        min_batch=min_batch,
+    )
+
+
+def fit_batch(
+    model: VocalFoldModel | Sequence[VocalFoldModel],
+    recordings: Sequence[Recording],
+    params: Sequence[str] = DEFAULT_PARAMS,
+    *,
+    bounds: dict | Sequence[dict | None] | None = None,
+    swarm: Swarm = DEFAULT_SWARM,
+    polish: Polish | None = DEFAULT_POLISH,
+    warmup: float | None = None,
+    substeps: int | None = None,
+    key: Array | None = None,
+    hold: Sequence[Sequence[str]] | None = None,
+    progress: bool | None = None,
+    callback: Callable[[int, float], None] | None = None,
+    restarts: int = 1,
+    min_batch: int = 1,
+    contest: tuple[Sequence[int], int] | None = None,
+) -> list[FitResult]:
+    """`fit_many`, where some fits may be alternatives to one another: ``contest`` is
+    ``(groups, best)``, a group number per recording and how many fits of each group are
+    polished, those whose swarms ended lowest (the others keep their swarm's best point and
+    cost, ``optimistix_result`` "not run"). A fit's result still depends on its own group
+    alone. None: every fit is polished (`fit_many`)."""
     t_all = time.perf_counter()
     recordings = list(recordings)
     if not recordings:
@@ -490,6 +546,8 @@ def fit_many(
         bounds = [bounds] * len(recordings)
     if isinstance(restarts, bool) or not isinstance(restarts, int) or restarts < 1:
         raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
+    if contest is not None and (len(contest[0]) != len(recordings) or int(contest[1]) < 1):
+        raise ValueError("contest needs a group per recording and at least one fit polished")
     warmup = max(default_warmup(m) for m in models) if warmup is None else float(warmup)
 
     for r in recordings:
@@ -611,18 +669,19 @@ def fit_many(
     n_y = problems[0].point_size
     no_points = np.zeros((n_fits + pad, n_y), found[0].dtype)
     from_swarm = np.zeros(n_fits + pad, bool)
+    chosen = active if contest is None else active & _contenders(found[1], owner, *contest)
     if not windows:
-        polished = polish_slices(batch, active, found, no_points, from_swarm, polish)
+        polished = polish_slices(batch, chosen, found, no_points, from_swarm, polish)
     else:
         # a long recording's own windows, each polish from the last one's point; the other
         # recordings of the batch are polished once, from the swarm's best, as alone
         long = polished_at[0]  # after the first window, from their last window's point
         points, given = no_points, from_swarm
         for stage, on in zip(windows, polished_at):
-            start = polish_slices(stage, active & on, found, points, given, polish)
+            start = polish_slices(stage, chosen & on, found, points, given, polish)
             points = np.where(on[:, None], start[2 if polish else 0], points)
             given = long
-        polished = polish_slices(batch, active, found, points, given, polish)
+        polished = polish_slices(batch, chosen, found, points, given, polish)
     y0, c0 = (np.asarray(a) for a in polished[:2])
     if polish is not None:
         y, cost, steps = (np.asarray(a) for a in polished[2:5])
@@ -630,6 +689,13 @@ def fit_many(
     else:
         y, cost, steps = y0, c0, np.zeros(len(problems), int)
         names = ["not run"] * len(problems)
+    if contest is not None:  # the fits left out keep their swarm's best
+        out = ~chosen[: len(problems)]
+        point, swarm_cost = (np.asarray(a)[: len(problems)] for a in found)
+        y = np.where(out[:, None], point, y[: len(problems)])
+        cost = np.where(out, swarm_cost, cost[: len(problems)])
+        c0 = np.where(out, swarm_cost, c0[: len(problems)])
+        names = ["not run" if o else n for o, n in zip(out, names)]
     t_lm = time.perf_counter() - t1
     if bar is not None:
         bar.update(1 if polish else 0)
