@@ -450,14 +450,12 @@ def test_a_contest_polishes_the_best_swarms_of_each_group_as_they_are_polished_a
     best swarms of each are polished (as a diagnosis's refit polishes the best of a job's
     starts): the polished fits are those of the swarms that ended lowest and equal the same
     fits in a batch that polishes all; the others end as their swarms ended."""
-    from vfjax._fit._engine import fit_batch
-
     truth = vfjax.preset("N1")
     recs = three_in_a_batch[0]
     batch = [recs[0]] * 3 + [recs[1]]
     options = dict(swarm=_BATCH_SWARM, key=jax.random.key(_BATCH_KEY), progress=False)
     every = fit_many(_start(truth), batch, **options)
-    two = fit_batch(_start(truth), batch, contest=([0, 0, 0, 1], 2), **options)
+    two = fit_many(_start(truth), batch, contest=([0, 0, 0, 1], 2), **options)
     swarm_best = [f.pso_trace[-1] for f in every]
     left_out = int(np.argmax(swarm_best[:3]))
     for i, (a, b) in enumerate(zip(every, two)):
@@ -472,7 +470,7 @@ def test_a_contest_polishes_the_best_swarms_of_each_group_as_they_are_polished_a
             assert b.params == pytest.approx(a.params, rel=1e-9)
             assert b.nmse < swarm_best[i]  # the polish gained
     with pytest.raises(ValueError, match="contest"):
-        fit_batch(_start(truth), batch, contest=([0, 1], 2), **options)
+        fit_many(_start(truth), batch, contest=([0, 1], 2), **options)
 
 
 _ON_TWO_DEVICES = """
@@ -797,10 +795,10 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
 
 
 def test_one_recording_fits_refuse_the_batch_options():
-    """`fit` and `fit_recording` fit one recording: `fit_many`'s ``hold`` and ``min_batch``
-    are refused by name, before anything is fitted."""
+    """`fit` and `fit_recording` fit one recording: `fit_many`'s ``hold``, ``min_batch`` and
+    ``contest`` are refused by name, before anything is fitted."""
     rec = _recording(vfjax.preset("N1"), t_start=0.03)
     for one, args in ((fit, (vfjax.preset("N1"), rec)), (vfjax.fit_recording, (rec,))):
-        for name in ("hold", "min_batch"):
+        for name in ("hold", "min_batch", "contest"):
             with pytest.raises(TypeError, match=f"takes no '{name}'"):
                 one(*args, **{name: 2})

@@ -7,8 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._fit import FitResult, search_range
-from .._fit._engine import fit_batch
+from .._fit import FitResult, fit_many, search_range
 from .._fit._problem import PLAUSIBLE, plausible_range
 from ..presets import initial_model
 from ..recording import Recording
@@ -117,8 +116,8 @@ def refit_each(
     """`refit_with` for several candidates at once: ``jobs`` is a list of ``(candidate or
     None, starts)``; returns the best refit of each job.
 
-    All jobs run as one batch of `vfjax.fit_many`'s engine (padded to ``plan.batch`` fits;
-    of each job's swarms the ``plan.polished`` that end lowest are polished), so that one
+    All jobs run as one `vfjax.fit_many` batch (padded to ``plan.batch`` fits; of each
+    job's swarms the ``plan.polished`` that end lowest are polished), so that one
     compiled program serves them all: every start simulates the fitted model extended by all
     the ``family``'s candidates (default: the jobs'), those not its own held at their
     off-values (where they change nothing). Every refit of a diagnosis passes the same
@@ -187,7 +186,7 @@ def refit_each(
     swarm = plan.swarm
     if iterations is not None:
         swarm = dataclasses.replace(swarm, iterations=iterations)
-    fits = fit_batch(
+    fits = fit_many(
         models,
         [recordings[j] for j in owner],
         params=union,

@@ -416,6 +416,7 @@ def fit_many(
     callback: Callable[[int, float], None] | None = None,
     restarts: int = 1,
     min_batch: int = 1,
+    contest: tuple[Sequence[int], int] | None = None,
 ) -> list[FitResult]:
     """Fit ``params`` of one model structure to many recordings as one batched job.
 
@@ -472,51 +473,15 @@ def fit_many(
             r > 0 ``fold_in`` of that key and r.
         min_batch: pad the batch to at least this many fits (skipped; they cost no
             simulation), so that jobs of different sizes up to it share their programs.
+        contest: ``(groups, best)``: a group number per recording, the fits of a group
+            being alternatives to one another (a diagnosis's refit from several starts), and
+            how many of each group are polished, those whose swarms ended lowest; the others
+            keep their swarm's best point and NMSE (``optimistix_result`` "not run"). A fit's
+            result still depends on its own group alone. None: every fit is polished.
 
     Returns:
         One `FitResult` per recording (timings are those of the whole batch).
     """
-    return fit_batch(
-        model,
-        recordings,
-        params,
-        bounds=bounds,
-        swarm=swarm,
-        polish=polish,
-        warmup=warmup,
-        substeps=substeps,
-        key=key,
-        hold=hold,
-        progress=progress,
-        callback=callback,
-        restarts=restarts,
-        min_batch=min_batch,
-    )
-
-
-def fit_batch(
-    model: VocalFoldModel | Sequence[VocalFoldModel],
-    recordings: Sequence[Recording],
-    params: Sequence[str] = DEFAULT_PARAMS,
-    *,
-    bounds: dict | Sequence[dict | None] | None = None,
-    swarm: Swarm = DEFAULT_SWARM,
-    polish: Polish | None = DEFAULT_POLISH,
-    warmup: float | None = None,
-    substeps: int | None = None,
-    key: Array | None = None,
-    hold: Sequence[Sequence[str]] | None = None,
-    progress: bool | None = None,
-    callback: Callable[[int, float], None] | None = None,
-    restarts: int = 1,
-    min_batch: int = 1,
-    contest: tuple[Sequence[int], int] | None = None,
-) -> list[FitResult]:
-    """`fit_many`, where some fits may be alternatives to one another: ``contest`` is
-    ``(groups, best)``, a group number per recording and how many fits of each group are
-    polished, those whose swarms ended lowest (the others keep their swarm's best point and
-    cost, ``optimistix_result`` "not run"). A fit's result still depends on its own group
-    alone. None: every fit is polished (`fit_many`)."""
     t_all = time.perf_counter()
     recordings = list(recordings)
     if not recordings:
@@ -788,7 +753,7 @@ def fit(
 
 def refuse_batch_options(caller: str, options: dict) -> None:
     """A TypeError if ``options`` of a one-recording fit (``caller``) hold one of
-    `fit_many`'s batch options (``hold``, ``min_batch``)."""
-    for name in ("hold", "min_batch"):
+    `fit_many`'s batch options (``hold``, ``min_batch``, ``contest``)."""
+    for name in ("hold", "min_batch", "contest"):
         if name in options:
             raise TypeError(f"{caller} takes no {name!r} (that is fit_many's, for batches)")
