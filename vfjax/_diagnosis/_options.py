@@ -85,14 +85,10 @@ class RefitPlan(eqx.Module):
             raise TypeError("RefitPlan: swarm must be a vfjax.Swarm and polish a vfjax.Polish")
         if not self.box > 1:
             raise ValueError(f"RefitPlan: box must be a factor > 1, got {self.box}")
-        p = self.polished
-        if p is not None and (isinstance(p, bool) or not isinstance(p, int) or p < 1):
-            raise ValueError(f"RefitPlan: polished must be a positive integer or None, got {p!r}")
-        c = self.confirm_iterations
-        if c is not None and (isinstance(c, bool) or not isinstance(c, int) or c < 1):
-            raise ValueError(
-                f"RefitPlan: confirm_iterations must be a positive integer or None, got {c!r}"
-            )
+        for name in ("polished", "confirm_iterations"):
+            n = getattr(self, name)
+            if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+                raise ValueError(f"RefitPlan: {name} must be a positive integer or None, got {n!r}")
 
     def confirm_search(self, n_params: int) -> tuple[int, int]:
         """(swarms, iterations) of the confirming refit for a candidate of ``n_params``
