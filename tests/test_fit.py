@@ -469,8 +469,9 @@ def test_a_contest_polishes_the_best_swarms_of_each_group_as_they_are_polished_a
             assert b.nmse == pytest.approx(a.nmse, rel=1e-9)
             assert b.params == pytest.approx(a.params, rel=1e-9)
             assert b.nmse < swarm_best[i]  # the polish gained
-    with pytest.raises(ValueError, match="contest"):
-        fit_many(_start(truth), batch, contest=([0, 1], 2), **options)
+    for wrong in (([0, 1], 2), ([0, 0, 0, 1], 1.5), ([0, 0, 0, 1], True), ([0, 0, 0, 1], 0)):
+        with pytest.raises(ValueError, match="contest"):
+            fit_many(_start(truth), batch, contest=wrong, **options)
 
 
 _ON_TWO_DEVICES = """

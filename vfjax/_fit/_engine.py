@@ -352,6 +352,18 @@ def _polish_batch(batch, active, found, points, from_point, polish: Polish | Non
     return jax.lax.map(one, (batch, active, found, points, from_point))
 
 
+def _check_contest(contest, n_recordings: int) -> None:
+    """Refuse a ``contest`` that is not ``(groups, best)`` with a group per recording and a
+    positive integer ``best`` (a float or a bool is refused, not truncated)."""
+    if not isinstance(contest, Sequence) or len(contest) != 2:
+        raise ValueError(f"contest must be a pair (groups, best), got {contest!r}")
+    groups, best = contest
+    if isinstance(groups, str) or np.ndim(groups) != 1 or len(groups) != n_recordings:
+        raise ValueError(f"contest needs one group number per recording ({n_recordings})")
+    if isinstance(best, bool) or not isinstance(best, int | np.integer) or best < 1:
+        raise ValueError(f"contest's count of fits polished must be an integer >= 1, got {best!r}")
+
+
 def _contenders(costs, owner, groups, best: int) -> np.ndarray:
     """Which fits of a padded batch are polished: of each group, the ``best`` whose swarms
     ended lowest (``costs``: each fit's swarm's best NMSE, padding included; ``owner``: each
@@ -511,8 +523,8 @@ def fit_many(
         bounds = [bounds] * len(recordings)
     if isinstance(restarts, bool) or not isinstance(restarts, int) or restarts < 1:
         raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
-    if contest is not None and (len(contest[0]) != len(recordings) or int(contest[1]) < 1):
-        raise ValueError("contest needs a group per recording and at least one fit polished")
+    if contest is not None:
+        _check_contest(contest, len(recordings))
     warmup = max(default_warmup(m) for m in models) if warmup is None else float(warmup)
 
     for r in recordings:
