@@ -370,8 +370,8 @@ def test_a_search_against_null_recordings_searched_alike_stops_at_the_first_that
     search reaches 0.9, 0.8, then 0.5 (as far: it counts), two a batch: with B = 111 at
     alpha = 0.01 one exceedance rules the search out, so the third null recording ends it
     (p = 2/4) and the fourth is never searched. A null recording's statistic refit that
-    falls further than its search counts in its place; a failed one counts against; at most
-    ``most`` are searched."""
+    falls as far counts without a search, and a failed one counts against; at most ``most``
+    are weighed."""
     sizes = (201, 4, 3)
     q_obs = float(f_p_values(1.0, 0.5, *sizes))
     limit = 0.01 * 112
@@ -385,17 +385,37 @@ def test_a_search_against_null_recordings_searched_alike_stops_at_the_first_that
     far = np.full((111, 1), 0.7)
     exceed, n = _searched_nulls(search, 0, q_obs, (far, np.ones(111), np.ones(111)), sizes, limit)
     assert (exceed, n) == (0, 111) and sum(search.calls) == 111
-    # the statistic's own refit (0.4) falls further than the search (0.7): it counts
+    # the statistic's own refit (0.4) falls further than the search (0.7): it counts, with
+    # no search run
     refits = np.r_[0.4, np.ones(5)]
-    exceed, n = _searched_nulls(_FakeSearch(1), 0, q_obs, (far[:6], ones, refits), sizes, limit)
-    assert (exceed, n) == (1, 1)
+    search = _FakeSearch(1)
+    exceed, n = _searched_nulls(search, 0, q_obs, (far[:6], ones, refits), sizes, limit)
+    assert (exceed, n) == (1, 1) and search.calls == []
+    # one whose statistic refit falls as far (the third, its refit at 0.45) counts without
+    # being searched; a batch searches the next three of the others (the search of the
+    # second, 0.5, falls as far too); in the order drawn, the second ends it
+    areas = np.array([[0.9], [0.5], [0.9], [0.9], [0.9]])
+    refits = np.array([1.0, 0.8, 0.45, 1.0, 1.0])
+    search = _FakeSearch(per=3)
+    exceed, n = _searched_nulls(search, 0, q_obs, (areas, ones[:5], refits), sizes, limit)
+    assert (exceed, n) == (1, 2) and search.calls == [3]
+    search = _FakeSearch(per=3)
+    exceed, n = _searched_nulls(search, 0, q_obs, (areas, ones[:5], refits), sizes, limit=10)
+    assert (exceed, n) == (2, 5) and search.calls == [3, 1]
+    # a batch's first search falls as far: the rest of that batch is weighed, not searched
+    # again
+    first = np.array([[0.5], [0.9], [0.9], [0.9], [0.9]])
+    search = _FakeSearch(per=3)
+    exceed, n = _searched_nulls(search, 0, q_obs, (first, ones[:5], ones[:5]), sizes, 10)
+    assert (exceed, n) == (1, 5) and search.calls == [3, 2]
     search = _FakeSearch(per=4)
     exceed, n = _searched_nulls(search, 0, q_obs, (far, ones, ones), sizes, limit, most=6)
     assert (exceed, n) == (0, 6) and search.calls == [4, 2]
     # a null recording whose statistic failed (NaN control) counts against
     failed = np.r_[np.nan, np.ones(5)]
-    exceed, n = _searched_nulls(_FakeSearch(3), 0, q_obs, (far[:6], failed, ones), sizes, limit)
-    assert (exceed, n) == (1, 1)
+    search = _FakeSearch(3)
+    exceed, n = _searched_nulls(search, 0, q_obs, (far[:6], failed, ones), sizes, limit)
+    assert (exceed, n) == (1, 1) and search.calls == []
 
 
 def test_candidates_beyond_every_null_recording_rank_by_their_centred_statistic():

@@ -78,8 +78,10 @@ class Calibrated:
             recordings whose better refit falls as far) / (1 + searched null recordings),
             times the candidates so searched. Where that reaches alpha the search's fall is
             the candidate's evidence (``p_values`` and ``nmse`` are the search's).
-        searched_nulls: per candidate, the null recordings its search ran on (0: none;
-            fewer than ``replicates`` where one that fell as far ruled it out early).
+        searched_nulls: per candidate, the null recordings its search was weighed on:
+            searched, or counted against it without a search where their statistic refit
+            already fell as far (0: none; fewer than ``replicates`` where one that fell as
+            far ruled it out early).
         variability: the variability and noise of the null recordings.
         intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
             alpha, else None.
@@ -121,21 +123,28 @@ class Calibrated:
 def _searched_nulls(search, k, q_obs, nulls, sizes, limit, most=None):
     """Candidate ``k``'s search refit on the recording (its F-test p-value ``q_obs``)
     against the same search on the null recordings ``nulls`` (areas, rows in the order they
-    were drawn, and their statistic's control and candidate NMSE), one batch of
-    ``search.per_batch(k)`` at a time: the null recordings whose better refit, the search's
-    or the statistic's, falls as far, and how many were searched (the p-value is (1 + the
-    first) / (1 + the second)). Sequential: stops once ``limit`` exceedances rule the
-    candidate out, or after ``most`` null recordings (None: all). ``sizes``: frames, fitted
-    parameters and the candidate's, of the F test."""
+    were drawn, and their statistic's control and candidate NMSE), ``search.per_batch(k)``
+    at a time: the null recordings whose better refit, the search's or the statistic's,
+    falls as far, and how many were weighed (the p-value is (1 + the first) / (1 + the
+    second)). A null recording whose statistic refit already falls as far, or whose
+    statistic failed, counts against without a search. Sequential: stops once ``limit``
+    exceedances rule the candidate out, or after ``most`` null recordings (None: all).
+    ``sizes``: frames, fitted parameters and the candidate's, of the F test."""
     areas, controls, refits = nulls
-    exceed, n, per = 0, 0, search.per_batch(k)
+    q_fixed = f_p_values(controls, refits, *sizes)
+    q_fixed = np.where(np.isfinite(controls), q_fixed, 0.0)  # a failed null counts against
     end = len(areas) if most is None else min(len(areas), most)
+    q = q_fixed[:end].copy()
+    to_search = np.flatnonzero(q > q_obs)  # the others count as they are
+    exceed, n, per = 0, 0, search.per_batch(k)
     while n < end and 1 + exceed <= limit:
-        batch = slice(n, min(n + per, end))
-        best = np.fmin(search(k, areas[batch]), refits[batch])
-        q = f_p_values(controls[batch], best, *sizes)
-        q = np.where(np.isfinite(controls[batch]), q, 0.0)  # a failed null counts against
-        for qi in q:
+        last = n
+        if q[n] > q_obs:  # the next one needs a search: it and the batch after it
+            rows = to_search[to_search >= n][:per]
+            best = np.fmin(search(k, areas[rows]), refits[rows])
+            q[rows] = f_p_values(controls[rows], best, *sizes)
+            last = rows[-1]
+        for qi in q[n : last + 1]:
             n += 1
             exceed += bool(qi <= q_obs)
             if 1 + exceed > limit:

@@ -140,10 +140,11 @@ class Calibration(eqx.Module):
             of them, ``replicates``, which decides it either way; 0: none). A search that
             these leave undecided is named unconfirmed (`vfjax.Diagnosis.unconfirmed`). A
             search that fits the recording's cycle-to-cycle variability is ruled out by the
-            first null recording whose search falls as far (the fourth, on a no-effect N1
-            of the injection-recovery benchmark); one that every null recording's falls
-            short of costs this many searches (on a 401-frame N1, the modulation's takes
-            about 10 s a null recording on 2 cores: about 3 minutes for 19, 18 for 111).
+            first null recording whose search falls as far (the second, on the no-effect N1
+            at 1 px, seed 1, of the injection-recovery benchmark); one that every null
+            recording's falls short of costs this many searches (on a 401-frame N1, the
+            modulation's takes about 10 s a null recording on 2 cores: about 3 minutes for
+            19, 18 for 111).
         control_starts: besides its refit from the fit's point, the control of the
             statistic is refitted on each recording from the best of this many more starts
             (by their cost with the time shift and S found afresh, `Problem.start`): the
