@@ -131,10 +131,10 @@ def _searched_nulls(search, k, q_obs, nulls, sizes, limit, most=None):
     exceedances rule the candidate out, or after ``most`` null recordings (None: all).
     ``sizes``: frames, fitted parameters and the candidate's, of the F test."""
     areas, controls, refits = nulls
-    q_fixed = f_p_values(controls, refits, *sizes)
-    q_fixed = np.where(np.isfinite(controls), q_fixed, 0.0)  # a failed null counts against
     end = len(areas) if most is None else min(len(areas), most)
-    q = q_fixed[:end].copy()
+    controls, refits = controls[:end], refits[:end]
+    # each one's statistic refit; a failed null counts against
+    q = np.where(np.isfinite(controls), f_p_values(controls, refits, *sizes), 0.0)
     to_search = np.flatnonzero(q > q_obs)  # the others count as they are
     exceed, n, per = 0, 0, search.per_batch(k)
     while n < end and 1 + exceed <= limit:
