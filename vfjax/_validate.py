@@ -107,6 +107,12 @@ def _concrete(value):
         raise TypeError(f"expected a number, got {value!r}") from err
 
 
+def is_count(value) -> bool:
+    """Whether ``value`` is a count of at least one: a Python int >= 1 (a bool, a float or a
+    NumPy scalar is not)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+
+
 def check_positive(name: str, value, unit: str = "") -> None:
     """Raise ValueError naming ``name`` unless every element of ``value`` is finite and > 0."""
     positive("value", name, unit).check(value)

@@ -6,6 +6,7 @@ import math
 import equinox as eqx
 
 from .._fit import Polish, Swarm
+from .._validate import is_count
 
 
 class Criteria(eqx.Module):
@@ -87,7 +88,7 @@ class RefitPlan(eqx.Module):
             raise ValueError(f"RefitPlan: box must be a factor > 1, got {self.box}")
         for name in ("polished", "confirm_iterations"):
             n = getattr(self, name)
-            if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+            if n is not None and not is_count(n):
                 raise ValueError(f"RefitPlan: {name} must be a positive integer or None, got {n!r}")
 
     def confirm_search(self, n_params: int) -> tuple[int, int]:

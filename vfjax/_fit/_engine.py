@@ -40,6 +40,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._programs import program
+from .._validate import is_count
 from ..model import VocalFoldModel
 from ..recording import Recording
 from ..terms.base import AbstractFoldPair
@@ -360,7 +361,7 @@ def _check_contest(contest, n_recordings: int) -> None:
     groups, best = contest
     if isinstance(groups, str) or np.ndim(groups) != 1 or len(groups) != n_recordings:
         raise ValueError(f"contest needs one group number per recording ({n_recordings})")
-    if isinstance(best, bool) or not isinstance(best, int | np.integer) or best < 1:
+    if not is_count(best):
         raise ValueError(f"contest's count of fits polished must be an integer >= 1, got {best!r}")
 
 
@@ -521,7 +522,7 @@ def fit_many(
             raise ValueError(f"got {len(bounds)} bounds for {len(recordings)} recordings")
     else:
         bounds = [bounds] * len(recordings)
-    if isinstance(restarts, bool) or not isinstance(restarts, int) or restarts < 1:
+    if not is_count(restarts):
         raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
     if contest is not None:
         _check_contest(contest, len(recordings))
