@@ -2,6 +2,9 @@
 limits, the refit statistic's solver against scipy, and the calibrated p-values on the
 shared independent recordings (the no-effect case, slow: `test_diagnosis`)."""
 
+import dataclasses
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -454,6 +457,13 @@ def test_candidates_beyond_every_null_recording_rank_by_their_centred_statistic(
     assert cal.ranking() == ["A", "B", "C"]
     # the uncentred statistic (the F test alone) would put B first
     assert np.argmin(cal.f_p_values) == 1
+    # the fit's goodness: the recording's control (1e-3) against the null recordings'; a
+    # tie and a failed one count against it, as for the candidates
+    assert math.isnan(cal.fit_p_value)  # no null recordings given
+    nulls = (2e-4, 3e-3, math.nan, 1e-3, 5e-4)
+    assert dataclasses.replace(cal, null_controls=nulls).fit_p_value == (1 + 3) / (1 + 5)
+    below = dataclasses.replace(cal, null_controls=(2e-4,) * 99)
+    assert below.fit_p_value == 1 / 100
 
 
 def test_a_modulations_second_lattice_spreads_its_phase_over_the_whole_cycle(n3):

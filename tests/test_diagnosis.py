@@ -260,6 +260,13 @@ def test_shared_gap_case(shared_dir, capsys):
     alone = Investigation(rec.name, [Round(result, d, None, None)]).outcome(rec)
     assert alone.status == "unexplained" and alone.evidence == {}
     assert any(f.startswith("closed phase") for f in alone.failures), alone.failures
+    # the paper's model without the gap leaves a misfit that repeats every cycle: its error
+    # lies above every null recording's (its noise and cycle-to-cycle variability alone)
+    cal = d.calibrated
+    assert len(cal.null_controls) == cal.replicates == 19
+    assert max(cal.null_controls) < cal.control_nmse and alone.fit_p_value == 1 / 20
+    assert "is above that of all 19 null recordings" in alone.words
+    assert math.isnan(outcome.fit_p_value)  # (the extended fit was not diagnosed)
     # a diagnosis of a failed fit says so first: its falls are measured from that fit
     assert not result.failed and not d.verdict.startswith("The diagnosed fit")
     no_better = dataclasses.replace(result, status="worse_than_mean", nmse_of_mean=0.02)
@@ -291,6 +298,7 @@ def test_shared_gap_case(shared_dir, capsys):
     assert nothing.unconfirmed == ["MucosalDelay"] and nothing.needed == []
     text = verdict_text(nothing)
     assert text.startswith("No ") and "Unconfirmed: the search's refits with MucosalDelay" in text
+    assert "Yet the fit's error is above that of all 19 null recordings" in text
     tau = float(delay.result.model.term(MucosalDelay).tau)
     assert f"(NMSE 0.100% against 4.000%; tau = {tau:.4g})" in text
     words = Investigation(rec.name, [Round(result, nothing, None, None)]).outcome(rec).words

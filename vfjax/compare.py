@@ -162,8 +162,8 @@ def _failures(c: Comparison) -> list[str]:
             )
     if not found:
         return [
-            f"{NO_CLEAR_FAILURE}: NMSE {100 * c.nmse:.2f} %, residual at the noise level "
-            f"({_fmt(sigma, c.unit)}), descriptors within tolerance"
+            f"{NO_CLEAR_FAILURE}: NMSE {100 * c.nmse:.2f} %, no phase's error stands out "
+            f"above the noise ({_fmt(sigma, c.unit)}), descriptors within tolerance"
         ]
     found.sort(key=lambda w: -w[0])
     return [text for _, text in found]

@@ -89,6 +89,10 @@ class Calibrated:
         cycles: the test of cycle-to-cycle variability against the fitted model with white
             noise only, and its size (`vfjax.diagnosis.CycleVariability`), where no
             candidate is significant; None otherwise or with fewer than four whole cycles.
+        null_controls: the control refit's NMSE on each null recording (NaN where it
+            failed), in the order drawn: what ``control_nmse`` is on recordings of the
+            fitted model with the recording's noise and cycle-to-cycle variability
+            (`fit_p_value`).
     """
 
     candidates: tuple
@@ -108,6 +112,20 @@ class Calibrated:
     cycles: CycleVariability | None = None
     search_p_values: tuple = ()
     searched_nulls: tuple = ()
+    null_controls: tuple = ()
+
+    @property
+    def fit_p_value(self) -> float:
+        """The calibrated goodness of fit of the model without any effect: (1 + null
+        recordings whose control refit ends at least as high as the recording's, or failed)
+        / (1 + null recordings). The null recordings carry the recording's noise and the
+        misfit that changes from cycle to cycle, so a small p-value says that the recording
+        holds a misfit they lack, one that repeats from cycle to cycle: something the model
+        misses. NaN without null recordings."""
+        nulls = np.asarray(self.null_controls, float)
+        if nulls.size == 0:
+            return math.nan
+        return _fit_p_value(self.control_nmse, nulls)
 
     def ranking(self) -> list[str]:
         """The candidates' names, best first: by family-wise p-value, ties (several
@@ -152,6 +170,12 @@ def _searched_nulls(search, k, q_obs, nulls, sizes, limit, most=None):
     return exceed, n
 
 
+def _fit_p_value(observed: float, nulls: np.ndarray) -> float:
+    """(1 + null controls at least ``observed``, a failed one, NaN, counting) / (1 + nulls)."""
+    reach = ~(np.asarray(nulls, float) < observed)
+    return float((1 + np.sum(reach)) / (1 + len(reach)))
+
+
 def _dofs(cands) -> np.ndarray:
     return np.array([len(c.tested + c.extra) for c in cands], float)
 
@@ -186,9 +210,10 @@ def calibrate(
     its control too, after that warm-up; the others in the fit's own sampling.
 
     Sequential: null recordings come in batches of ``calibration.batch`` (the first one
-    with the recording itself); once every candidate's family-wise p-value, and its search
-    refit's (``search_p_values``), exceeds ``alpha`` whatever the remaining ones show, no
-    more are simulated.
+    with the recording itself); once every candidate's family-wise p-value, its search
+    refit's (``search_p_values``) and the fit's own goodness (`Calibrated.fit_p_value`:
+    whether the recording's control ends above every null recording's) exceed ``alpha``
+    whatever the remaining ones show, no more are simulated.
 
     For each candidate whose p-value is at most ``alpha``, its values refined (its refit on
     the recording continued from where the statistic's ended) and their interval (a
@@ -288,6 +313,9 @@ def calibrate(
             family = family_p_values(q_obs, np.asarray(nulls_q))[0]
             searches = family_p_values(q_search, np.asarray(nulls_q))[0]
             open_ = np.minimum(family, np.where(has_search, searches, np.inf))
+            # the fit's own goodness (`Calibrated.fit_p_value`): open while the recording's
+            # control ends above every null recording's
+            open_ = np.minimum(open_, _fit_p_value(cc[0, main], np.asarray(controls)))
             if bar is not None:
                 bar.set_postfix(p=f"{float(np.min(family)):.2g}")
             if np.all(open_ * (len(nulls_q) + 1) > level_count):
@@ -352,6 +380,7 @@ def calibrate(
         interval_level=calibration.interval,
         search_p_values=tuple(float(x) for x in search_p),
         searched_nulls=tuple(int(x) for x in searched_nulls),
+        null_controls=tuple(float(x) for x in controls),
     )
     if refine is not None:
         estimates = refine(tested)

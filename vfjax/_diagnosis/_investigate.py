@@ -8,6 +8,7 @@ vfjax.report.write_report(study, recording, "out/")
 """
 
 import dataclasses
+import math
 from collections.abc import Sequence
 
 from .._fit import (
@@ -78,6 +79,22 @@ class Investigation:
         control = last.diagnosis.control
         return control if control is not None and control.nmse < last.fit.nmse else last.fit
 
+    def _final_calibration(self):
+        """The last diagnosis's calibration where it weighed the final fit (the last round
+        added no effect), else None."""
+        last = self.rounds[-1]
+        return last.diagnosis.calibrated if last.extended is None else None
+
+    def fit_p_value(self) -> float:
+        """The final fit's calibrated goodness of fit (`Calibrated.fit_p_value` of the last
+        diagnosis, where it weighed the final fit); NaN where no calibration did."""
+        cal = self._final_calibration()
+        return math.nan if cal is None else cal.fit_p_value
+
+    def _null_count(self) -> int:
+        cal = self._final_calibration()
+        return 0 if cal is None else len(cal.null_controls)
+
     @property
     def added(self) -> list[str]:
         """The effects added, in order."""
@@ -97,18 +114,26 @@ class Investigation:
         evidence = {r.added: r.diagnosis.refits[r.added].p_value for r in self.rounds if r.added}
         failures = compare(self.final, recording).failures()
         added = ", ".join(f"{k} (calibrated p = {p:.2g})" for k, p in evidence.items())
+        goodness, nulls = self.fit_p_value(), self._null_count()
+        beyond = goodness <= self.rounds[-1].diagnosis.criteria.alpha  # (False for NaN)
         if evidence and removed >= EXPLAINED_SHARE:
             status = "explained"
             words = (
                 f"{added} removed {removed:.0%} of the misfit above the noise floor (NMSE "
                 f"{first:.3%} -> {final:.3%}, floor {floor:.3%})"
             )
-        elif misfit <= 0 or failures[0].startswith(NO_CLEAR_FAILURE):
+        elif misfit <= 0 or (failures[0].startswith(NO_CLEAR_FAILURE) and not beyond):
             status = "at the noise level"
             added = f"{added} added, removing {removed:.0%} of the misfit; " if added else ""
+            within = (
+                f"an error that noise and cycle-to-cycle variability leave too (calibrated "
+                f"p = {goodness:.2g} against {nulls} null recordings of the fitted model)"
+                if nulls
+                else "no phase or descriptor that the model misses"
+            )
             words = (
-                f"{added}the fit leaves a residual at the noise level and descriptors within "
-                f"tolerance (NMSE {first:.3%} -> {final:.3%}, noise floor {floor:.3%})"
+                f"{added}the fit leaves {within} (NMSE {first:.3%} -> {final:.3%}, noise "
+                f"floor {floor:.3%})"
             )
         else:
             status = "unexplained"
@@ -117,10 +142,20 @@ class Investigation:
                 if not evidence
                 else f"{', '.join(evidence)} removed only {removed:.0%} of the misfit"
             )
-            words = (
-                f"{what} (NMSE {first:.3%} -> {final:.3%}, noise floor {floor:.3%}); the "
-                f"model still misses: {'; '.join(failures[:3])}"
+            words = f"{what} (NMSE {first:.3%} -> {final:.3%}, noise floor {floor:.3%})"
+            if beyond:
+                words += (
+                    f"; the fit's error is above that of all {nulls} null recordings of the "
+                    "fitted model with the recording's noise and cycle-to-cycle variability "
+                    f"(calibrated p = {goodness:.2g}): it misses something that repeats from "
+                    "cycle to cycle"
+                )
+            missed = (
+                "no single phase or descriptor"
+                if failures[0].startswith(NO_CLEAR_FAILURE)
+                else "; ".join(failures[:3])
             )
+            words += f"; the model still misses: {missed}"
         pressure = self.final.params.get("P_s")
         low, high = PRESSURE_RANGE
         if pressure is not None and not low * (1 + 1e-6) < float(pressure) < high * (1 - 1e-6):
@@ -147,6 +182,7 @@ class Investigation:
         return Outcome(
             recording_name=self.recording_name,
             status=status,
+            fit_p_value=goodness,
             first_nmse=first,
             final_nmse=final,
             noise_nmse=floor,
@@ -166,9 +202,10 @@ class Outcome:
         recording_name: the recording's name.
         status: "explained" (effects added with calibrated evidence removed at least
             `EXPLAINED_SHARE` of the misfit above the noise floor); else "at the noise level"
-            (the final fit's comparison finds no clear failure: residual at the noise level,
-            descriptors within tolerance) or "unexplained" (``failures`` names what the
-            final fit misses).
+            (the final fit's comparison finds no phase or descriptor that it misses, and its
+            error is not above every null recording's at alpha: ``fit_p_value``) or
+            "unexplained" (``failures`` names what the final fit misses; the words say
+            when its error lies above every null recording's).
         first_nmse, final_nmse: NMSE of the paper's model's fit and of the final fit.
         noise_nmse: the NMSE that measurement noise alone leaves (the last diagnosis's
             estimate).
@@ -180,6 +217,8 @@ class Outcome:
         settling: the final fit after a longer warm-up (`vfjax.settling`); the words say
             when the fit is not settled (it matches the recording with the model's
             start-up, and its parameters describe a transient).
+        fit_p_value: the final fit's calibrated goodness of fit
+            (`Investigation.fit_p_value`); NaN where no calibration weighed it.
     """
 
     recording_name: str
@@ -192,6 +231,7 @@ class Outcome:
     failures: list
     words: str
     settling: Settling | None = None
+    fit_p_value: float = math.nan
 
 
 def extend_from(

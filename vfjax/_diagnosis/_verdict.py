@@ -297,6 +297,7 @@ def verdict_text(d: Diagnosis) -> str:
         )
     lines += _unassessed_text(d)
     lines += _unconfirmed_text(d)
+    lines += _goodness_text(d)
     cycles = _cycles_text(d)
     if cycles:
         lines.append(cycles)
@@ -365,6 +366,19 @@ def _unconfirmed_text(d: Diagnosis) -> list[str]:
         f"not, and lie beyond the null recordings at alpha = {d.criteria.alpha:g}; "
         f"{searched}, so this is no evidence, but the effect is not ruled out either: "
         "compare the fits (vfjax.workflow.extend_from)"
+    ]
+
+
+def _goodness_text(d: Diagnosis) -> list[str]:
+    """The sentence on a fit whose error lies beyond every null recording's
+    (`Calibrated.fit_p_value` at most alpha), where no candidate is needed."""
+    cal = d.calibrated
+    if cal is None or not cal.null_controls or not cal.fit_p_value <= d.criteria.alpha:
+        return []
+    return [
+        f"Yet the fit's error is above that of all {len(cal.null_controls)} null recordings "
+        f"(calibrated p = {cal.fit_p_value:.2g}): the recording holds a misfit that repeats "
+        "from cycle to cycle, which no candidate describes"
     ]
 
 
