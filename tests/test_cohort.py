@@ -4,6 +4,7 @@ Dask worker processes as in one process; each recording's fit the same as alone.
 
 import dataclasses
 import json
+import math
 import os
 import pathlib
 import shutil
@@ -346,5 +347,7 @@ def test_a_diagnosed_recordings_row_and_folder(serial, tmp_path):
     assert row["settled NMSE"] == outcome.settling.nmse
     assert row["settled"] == ("yes" if outcome.settling.settled else "no")
     assert row["K [dyne/cm]"] == first.params["K"] and row["conclusion"] == outcome.words
+    # a score-test diagnosis simulates no null recording: no goodness of fit to report
+    assert math.isnan(outcome.fit_p_value) and "goodness of fit p" not in row
     _write_study(study, rec)(tmp_path)
     assert {"fit.json", "final_fit.json", "report.md"} <= {p.name for p in tmp_path.iterdir()}

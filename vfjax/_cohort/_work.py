@@ -138,8 +138,10 @@ def study_row(entry: CohortEntry, rec: Recording, study, seconds: float) -> dict
     """The row of a recording fitted and diagnosed (`vfjax.Investigation`): NMSE before and
     after, the effects added with their calibrated p-values and intervals, those the final
     round names unconfirmed (`vfjax.Diagnosis.unconfirmed`), the final round's
-    test of cycle-to-cycle variability, whether the final fit is settled (`vfjax.settling`:
-    its NMSE after the longer warm-up), the outcome and the final model's parameters."""
+    test of cycle-to-cycle variability, the final fit's calibrated goodness of fit
+    (`vfjax.workflow.Investigation.fit_p_value`, where a calibration weighed it), whether the
+    final fit is settled (`vfjax.settling`: its NMSE after the longer warm-up), the outcome
+    and the final model's parameters."""
     outcome = study.outcome(rec)
     final = study.final
     row = {
@@ -171,6 +173,8 @@ def study_row(entry: CohortEntry, rec: Recording, study, seconds: float) -> dict
         row["cycle variability p"] = cycles.p_value
         row["timing spread [s]"] = cycles.timing_sd
         row["amplitude spread [1]"] = cycles.amplitude_sd
+    if math.isfinite(outcome.fit_p_value):  # the final fit weighed by a calibration
+        row["goodness of fit p"] = outcome.fit_p_value
     row["conclusion"] = outcome.words
     row["seconds"] = seconds
     if final.failed:
