@@ -20,7 +20,10 @@ interval holds the truth, how often another effect is needed too (an effect part
 another's misfit: the diagnosis's first is the one to add, the others are tested again after
 it), and the oracle: the share of the error that the true structure at its true values
 (polished from there) removes from the paper model's fit, the best any test could see. The
-false-alarm rate is the share of no-effect recordings where anything is needed.
+false-alarm rate is the share of no-effect recordings where anything is needed; beside it,
+how often the fit's own error lies beyond every null recording's (`Calibrated.fit_p_value`
+at most 0.01: a misfit the null recordings lack, which on a no-effect recording is a false
+alarm of its own kind).
 
 Resumable: each recording's outcome (with the commit that made it) is appended to a
 JSON-lines file (``--out``) as soon as it is done; a rerun skips what is there and prints the
@@ -238,6 +241,8 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         "ranking": d.ranking,
         "p_values": {n: f.p_value for n, f in d.refits.items()},
         "replicates": d.calibrated.replicates if d.calibrated is not None else None,
+        # the fit's calibrated goodness: the recording's control against the null recordings'
+        "fit_p_value": d.calibrated.fit_p_value if d.calibrated is not None else None,
         # the null recordings' variability: timing offsets (s), amplitude factors, periods (s)
         "null_spreads": [
             d.calibrated.variability.timing_sd,
@@ -287,6 +292,13 @@ def summary(rows):
         if told:
             flags = sum(bool(r["unconfirmed"]) for r in told)
             print(f"no effect: an unconfirmed search flagged on {flags}/{len(told)}")
+        weighed = [r for r in nulls if r.get("fit_p_value") is not None]
+        if weighed:  # (each at the diagnosis's alpha, 0.01 by default)
+            beyond = sorted(r["key"] for r in weighed if r["fit_p_value"] <= 0.01)
+            print(
+                f"no effect: the fit's error beyond every null recording's on "
+                f"{len(beyond)}/{len(weighed)}" + "".join(f"\n    {k}" for k in beyond)
+            )
     print(
         "effect              strength  n  detected  first  recovered/truth (median)  "
         "interval holds truth  others needed  oracle fall (median)  s/recording  "
