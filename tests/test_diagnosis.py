@@ -179,9 +179,9 @@ def _shared(shared_dir, name, **options):
 #: A level whose smallest p-value (1/20) takes one batch of 19 null recordings (and the
 #: recording) instead of the default's seven batches of 16 (1/112 at alpha 0.01), and a short
 #: search: one start per candidate, no confirming refit, batches of 32 refits. Notebook 03's
-#: quick run uses the same search and batch of null recordings (so that its kernel finds
-#: these programs compiled: `tests/test_notebooks.py`), notebook 02's the same level with
-#: batches of 8 refits for its one candidate. The default search runs in the slow cases and
+#: quick run uses the same level, search and batch of null recordings (so that its kernel
+#: finds these programs compiled: `tests/test_notebooks.py`), notebook 02's the same level
+#: with batches of 8 refits for its one candidate. The default search runs in the slow cases and
 #: in benchmarks/diagnosis_power.py.
 QUICK_LEVEL = {
     "criteria": vfjax.Criteria(alpha=0.05),
