@@ -85,6 +85,7 @@ class Investigation:
         last = self.rounds[-1]
         return last.diagnosis.calibrated if last.extended is None else None
 
+    @property
     def fit_p_value(self) -> float:
         """The final fit's calibrated goodness of fit (`Calibrated.fit_p_value` of the last
         diagnosis, where it weighed the final fit); NaN where no calibration did."""
@@ -114,7 +115,7 @@ class Investigation:
         evidence = {r.added: r.diagnosis.refits[r.added].p_value for r in self.rounds if r.added}
         failures = compare(self.final, recording).failures()
         added = ", ".join(f"{k} (calibrated p = {p:.2g})" for k, p in evidence.items())
-        goodness, nulls = self.fit_p_value(), self._null_count()
+        goodness, nulls = self.fit_p_value, self._null_count()
         beyond = goodness <= self.rounds[-1].diagnosis.criteria.alpha  # (False for NaN)
         if evidence and removed >= EXPLAINED_SHARE:
             status = "explained"
