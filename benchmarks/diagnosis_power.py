@@ -293,8 +293,9 @@ def summary(rows):
             flags = sum(bool(r["unconfirmed"]) for r in told)
             print(f"no effect: an unconfirmed search flagged on {flags}/{len(told)}")
         weighed = [r for r in nulls if r.get("fit_p_value") is not None]
-        if weighed:  # (each at the diagnosis's alpha, 0.01 by default)
-            beyond = sorted(r["key"] for r in weighed if r["fit_p_value"] <= 0.01)
+        if weighed:  # at the level the recordings were diagnosed with (the default)
+            alpha = vfjax.Criteria().alpha
+            beyond = sorted(r["key"] for r in weighed if r["fit_p_value"] <= alpha)
             print(
                 f"no effect: the fit's error beyond every null recording's on "
                 f"{len(beyond)}/{len(weighed)}" + "".join(f"\n    {k}" for k in beyond)

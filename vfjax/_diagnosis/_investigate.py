@@ -92,10 +92,6 @@ class Investigation:
         cal = self._final_calibration()
         return math.nan if cal is None else cal.fit_p_value
 
-    def _null_count(self) -> int:
-        cal = self._final_calibration()
-        return 0 if cal is None else len(cal.null_controls)
-
     @property
     def added(self) -> list[str]:
         """The effects added, in order."""
@@ -115,7 +111,9 @@ class Investigation:
         evidence = {r.added: r.diagnosis.refits[r.added].p_value for r in self.rounds if r.added}
         failures = compare(self.final, recording).failures()
         added = ", ".join(f"{k} (calibrated p = {p:.2g})" for k, p in evidence.items())
-        goodness, nulls = self.fit_p_value, self._null_count()
+        cal = self._final_calibration()
+        goodness = self.fit_p_value
+        nulls = 0 if cal is None else len(cal.null_controls)
         beyond = goodness <= self.rounds[-1].diagnosis.criteria.alpha  # (False for NaN)
         if evidence and removed >= EXPLAINED_SHARE:
             status = "explained"
