@@ -14,7 +14,7 @@ from scipy.optimize import least_squares
 
 import vfjax
 from vfjax._diagnosis._calibration import Calibrated, _searched_nulls, calibrate
-from vfjax._diagnosis._cycles import cycle_projections, variability_test
+from vfjax._diagnosis._cycles import cycle_deviation, cycle_projections, variability_test
 from vfjax._diagnosis._nulls import Spreads, _NullSource, variability_kind
 from vfjax._diagnosis._options import Calibration
 from vfjax._diagnosis._statistic import _fit_point, f_p_values, family_p_values
@@ -121,6 +121,23 @@ def test_cycle_projections_read_a_constant_offset_and_gain(n3):
     assert cycle_projections(fitted[:20], fitted[:20], FPS)[0].size == 0  # under 3 cycles
 
 
+def test_cycle_deviation_counts_every_frame_and_no_shared_misfit(n3):
+    """A misfit that every cycle shares (a 5 % gain) changes nothing from cycle to cycle:
+    under a hundredth of its share of the squared area. A bump in the frames after the last
+    cycle's start alone (a partial cycle) is all deviation: its sum of squares over the
+    area's, within 5 % (its resampling onto the cycle's points)."""
+    fitted = _area(n3, 201)
+    gain = cycle_deviation(1.05 * fitted, fitted, FPS)
+    assert 0 <= gain < 0.01 * 0.05**2
+    last = int(np.ceil(vfjax.descriptors.cycle_starts(fitted, FPS)[-1] * FPS))
+    bump = np.zeros_like(fitted)
+    frames = np.arange(last + 2, min(last + 14, fitted.size))
+    bump[frames] = 3.0 * np.sin(np.pi * (frames - frames[0] + 1) / (frames.size + 1)) ** 2
+    area = fitted + bump
+    share = np.sum(bump**2) / np.sum(area**2)
+    assert cycle_deviation(area, fitted, FPS) == pytest.approx(share, rel=0.05)
+
+
 def test_null_recordings_tell_a_wandering_timing_from_a_scattered_one(n3):
     """`variability_kind` on two recordings of N3 (1 001 frames, 48 cycles, 1 px noise)
     made by the null source itself: one whose periods vary by 20 us from cycle to cycle
@@ -151,6 +168,32 @@ def test_null_recordings_tell_a_wandering_timing_from_a_scattered_one(n3):
     assert found["walk"].timing < walk.period, found
     assert 0.6 * scatter.timing < found["scatter"].timing < 1.4 * scatter.timing, found
     assert found["scatter"].period < found["scatter"].timing / 3, found
+
+
+def test_a_null_recordings_misfit_is_measured_after_what_a_refit_takes_up(n3):
+    """A null recording of N3 seen 20 us late, 3 % larger and with 0.2 % more stiffness, no
+    noise: a refit of S and K (with the time shift) removes all of that. `refitted` leaves
+    under 2 % of its squared misfit (the second-order rest), and under the noise's own
+    share when the misfit is white noise (a refit takes up 3 directions of 201)."""
+    n = 201
+    area = np.maximum(_area(n3, n), 0.0)
+    period = 1.0 / vfjax.descriptors.fundamental_frequency(area, FPS)
+    rec = vfjax.Recording(area=area, fps=FPS, name="n3")
+    own = _problem_of(n3, rec, vfjax.Sampling(FPS, n, warmup=0.03), period)
+    source = _NullSource(own, n3, 0.0, rec, period, seed=0, fitted=("S", "K"))
+    moved = _NullSource(own, n3.set(K=1.002 * float(n3.params()["K"])), 0.0, rec, period, seed=0)
+    offsets = np.full((1, moved.n_slots), -20e-6)
+    shifted = moved.draw_with(offsets, np.full((1, moved.n_slots), 1.03), noise_sd=0.0)
+    clean = source.clean[:n]
+    misfit = shifted[:, :n] - clean
+    left = source.refitted(shifted[:, :n]) - clean
+    assert np.sum(misfit**2) > 0
+    assert np.sum(left**2) < 0.02 * np.sum(misfit**2)
+    noise = np.random.default_rng(1).standard_normal((1, n))
+    left = source.refitted(clean + noise) - clean
+    assert np.sum(noise**2) > np.sum(left**2) > (1 - 10 / n) * np.sum(noise**2)
+    plain = _NullSource(own, n3, 0.0, rec, period, seed=0)  # no fitted parameters: as drawn
+    np.testing.assert_array_equal(plain.refitted(shifted[:, :n]), shifted[:, :n])
 
 
 def _problem_of(model, rec, sampling, period):

@@ -254,7 +254,14 @@ def calibrate(
         float(g.problem.grid.t_start) + float(g.problem.grid.max_time_shift) for g in groups
     )
     source = _NullSource(
-        own, result.model, result.time_shift, recording, period, calibration.seed, latest_start
+        own,
+        result.model,
+        result.time_shift,
+        recording,
+        period,
+        calibration.seed,
+        latest_start,
+        fitted=tuple(result.params),
     )
     noise = source.noise_sd
     size = calibration.batch
@@ -473,6 +480,14 @@ def bootstrap_interval(
     return (centre - half, centre + half)
 
 
+def _refitted_names(jobs, cand) -> tuple[str, ...]:
+    """The parameters that a candidate's refit in ``jobs`` adjusts: the control's (its
+    fitted parameters, S where the problem fits it) and the candidate's tested ones."""
+    problem = jobs.problem
+    control = [n for n, f in zip(problem.names, np.asarray(jobs.frees[0])) if f]
+    return tuple(dict.fromkeys([*control, *cand.tested, *(["S"] if problem.fit_s else [])]))
+
+
 def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple:
     """Candidate ``k``'s parameters refined from the point ``y`` of the recording's refit
     (in its group ``jobs``), and their interval: ``({parameter: value}, {parameter: (low,
@@ -495,6 +510,7 @@ def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple
         source.recording,
         source.period,
         int(source.rng.integers(2**32)),
+        fitted=_refitted_names(jobs, cand),
     )
     spreads = _spreads(truth, calibration)
     size, n = calibration.batch, calibration.interval_replicates

@@ -31,9 +31,12 @@ _STEPS = 60
 def cycle_deviation(area, fitted, fps: float) -> float:
     """The part of a GAW's misfit that changes from cycle to cycle, as a share of its
     squared area: the residual (``area`` - ``fitted``) cut at the fitted GAW's cycles,
-    each resampled to one common length, minus their mean (the misfit that every cycle
-    shares, which an effect may explain); the sum of squares left, over sum(area²). NaN
-    with fewer than three cycles."""
+    each resampled to one common length, minus their mean at each point of the cycle (the
+    misfit that every cycle shares, which an effect may explain); the sum of squares left,
+    over sum(area²). The frames before the first cycle's start and after the last one are
+    partial cycles at the mean period, each point taken where it lies inside the recording:
+    every frame counts, as in the NMSE (over six cycles, a misfit in the last one alone is a
+    sixth of the frames). NaN with fewer than three cycles."""
     a, g = np.asarray(area, float), np.asarray(fitted, float)
     starts = cycle_starts(g, fps) * fps
     if starts.size < 4:
@@ -41,15 +44,19 @@ def cycle_deviation(area, fitted, fps: float) -> float:
     length = max(int(round(float(np.median(np.diff(starts))))), 2)
     frames = np.arange(a.size)
     r = a - g
-    rows = np.stack(
-        [
-            np.interp(s0 + (s1 - s0) * np.arange(length) / length, frames, r)
-            for s0, s1 in zip(starts[:-1], starts[1:])
-        ]
-    )
-    per_point = float(np.mean(np.diff(starts))) / length  # frames per resampled point
-    dev = rows - rows.mean(axis=0)
-    return float(np.sum(dev**2) * per_point / np.sum(a**2))
+    phase = np.arange(length) / length
+    period = float(np.mean(np.diff(starts)))
+    whole = [
+        np.interp(s0 + (s1 - s0) * phase, frames, r) for s0, s1 in zip(starts[:-1], starts[1:])
+    ]
+    partial = []
+    for t in (starts[0] - period * (1.0 - phase), starts[-1] + period * phase):
+        inside = (t >= 0) & (t <= a.size - 1)
+        partial.append(np.where(inside, np.interp(t, frames, r), np.nan))
+    rows = np.stack(whole + partial)
+    dev = rows - np.mean(whole, axis=0)
+    per_point = period / length  # frames per resampled point
+    return float(np.nansum(dev**2) * per_point / np.sum(a**2))
 
 
 def cycle_projections(area, fitted, fps: float) -> tuple[np.ndarray, np.ndarray]:

@@ -37,8 +37,9 @@ class Variability:
     that show the recording's per-cycle timing and amplitude misfits (`variability_kind`),
     measured alike on the recording and on simulated ones, noise included. A mechanism the
     model lacks varies too: their size is set so that null recordings show the recording's
-    misfit that changes from cycle to cycle (`cycle_deviation`; the misfit every cycle
-    shares is left to the candidates; `variability_size`).
+    misfit that changes from cycle to cycle (`cycle_deviation`, theirs after what a refit of
+    the fitted parameters takes up, as the recording's is measured about its fit; the misfit
+    every cycle shares is left to the candidates; `variability_size`).
 
     Attributes:
         jitter, shimmer: the recording's local jitter and shimmer (fractions; reported,
@@ -100,6 +101,10 @@ class Spreads(NamedTuple):
     period: float = 0.0  # deviation of each cycle's period, a random walk of the timing (s)
 
 
+#: A parameter's step in the central differences of `_NullSource._fit_directions`, relative
+#: to its value.
+_RELATIVE_STEP = 1e-4
+
 #: No variability: white noise only.
 NO_SPREADS = Spreads()
 
@@ -108,9 +113,13 @@ class _NullSource:
     """Draws recordings from a model: its GAW at the problem's sampling and time shift, with
     cycle-to-cycle variability and white noise at the level of the recording's misfit to
     that GAW, clipped at zero and rounded like the recording (integer areas stay
-    integers)."""
+    integers). ``fitted``: the names of the parameters the fit adjusted (S for the scale),
+    whose first-order effect on the GAW (with the time shift's) `refitted` removes from a
+    null recording's misfit before its variability is measured."""
 
-    def __init__(self, problem, model, shift, recording: Recording, period, seed, start=0.0):
+    def __init__(
+        self, problem, model, shift, recording: Recording, period, seed, start=0.0, fitted=()
+    ):
         self.simulator = _Simulator(problem)
         self.shift = jnp.asarray(shift)
         self.recording = recording
@@ -135,6 +144,52 @@ class _NullSource:
         # the white noise: what the recording's misfit to the model shows
         self.noise_sd = noise_level(recording.area, self.clean[: recording.n_frames])
         self.rng = np.random.default_rng(seed)
+        self.absorbed = self._fit_directions(tuple(fitted))
+
+    def _fit_directions(self, fitted: tuple) -> np.ndarray | None:
+        """An orthonormal basis (frames, directions) of what a refit of ``fitted`` (names
+        of the model's parameters; S for the scale) and the time shift moves the clean GAW
+        along over the recording's frames, to first order: each parameter's central
+        difference, the GAW itself for S, its slope for the shift. None without ``fitted``."""
+        if not fitted:
+            return None
+        frames = self.recording.n_frames
+        clean = self.clean[:frames]
+        columns = [np.gradient(clean) * self.recording.fps]
+        if "S" in fitted:
+            columns.append(clean)
+        values = self.model.params()
+        # the program's batch of rows (one compiled program), all alike
+        none = jnp.zeros((_DRAW_BATCH, self.n_slots)), jnp.ones((_DRAW_BATCH, self.n_slots))
+        for name in fitted:
+            if name == "S" or name not in values:
+                continue
+            value = float(values[name])
+            step = _RELATIVE_STEP * (abs(value) or 1.0)
+            moved = [
+                np.asarray(
+                    _jittered_gaws(self.simulator, self.model.set(**{name: v}), self.shift, *none)
+                )[0, :frames]
+                for v in (value + step, value - step)
+            ]
+            columns.append((moved[0] - moved[1]) / (2 * step))
+        columns = np.stack(columns, axis=1)
+        if not np.all(np.isfinite(columns)):
+            return None
+        q, r = np.linalg.qr(columns)
+        kept = np.abs(np.diag(r)) > 1e-9 * np.max(np.abs(np.diag(r)))
+        return q[:, kept]
+
+    def refitted(self, areas: np.ndarray) -> np.ndarray:
+        """``areas`` (rows, the recording's frames) with their misfit to the clean GAW less
+        its part along `_fit_directions`: what a refit of the fitted parameters would leave,
+        to first order (a refit takes up a share of the variability, the larger the fewer
+        the cycles: the recording's own misfit is measured about its fit)."""
+        if self.absorbed is None:
+            return areas
+        clean = self.clean[: areas.shape[1]]
+        misfit = areas - clean
+        return clean + misfit - (misfit @ self.absorbed) @ self.absorbed.T
 
     def draw(self, n: int, spreads=NO_SPREADS) -> np.ndarray:
         """``n`` recordings' areas (n, frames bucket), zero beyond the recording, with the
@@ -193,7 +248,8 @@ def _mean_measure(source, areas: np.ndarray, measure, width: int) -> np.ndarray:
     finite; NaN where none is."""
     rec = source.recording
     clean = source.clean[: rec.n_frames]
-    found = [measure(a[: rec.n_frames], clean, rec.fps) for a in areas if np.all(np.isfinite(a))]
+    areas = areas[np.all(np.isfinite(areas), axis=1), : rec.n_frames]
+    found = [measure(a, clean, rec.fps) for a in source.refitted(areas)]
     found = [f for f in found if np.all(np.isfinite(f))]
     return np.mean(found, axis=0) if found else np.full(width, math.nan)
 
@@ -245,8 +301,9 @@ def _deviation(source, areas) -> float:
 
 def variability_size(source: "_NullSource", fitted, kind: Spreads, n: int = 8) -> Spreads:
     """The spreads ``kind`` scaled together so that null recordings show the recording's
-    cycle-to-cycle misfit (`cycle_deviation` about ``fitted``, its fitted GAW; about the
-    clean GAW for the null recordings), the excess over what noise alone leaves taken as
+    cycle-to-cycle misfit (`cycle_deviation` about ``fitted``, its fitted GAW; for the
+    null recordings about the clean GAW after what a refit takes up, `_NullSource.refitted`),
+    the excess over what noise alone leaves taken as
     proportional to the variance, solved twice: a mechanism the model lacks that varies
     from cycle to cycle shows there too. Where ``kind`` is zero, the trial spreads'
     proportions (`_TRIAL`). Where the misfit lies within what noise alone leaves, ``kind``
