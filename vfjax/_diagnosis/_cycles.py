@@ -345,8 +345,9 @@ def variability_test(
     ((t_var, dof_t), (a_var, dof_a), offsets, factors, sse, residual) = _per_cycle_spreads(
         problem, np.asarray(problem.measured)[None], y0, basis, period, inside, k, n
     )[0]
-    # the null: the model's GAW with white noise only, each about the model's GAW; the
-    # noise is what the per-cycle fit leaves (a noise estimate from the first fit's misfit
+    # the null: the model's GAW with white noise only, each about the model's GAW after
+    # what a refit takes up (`_NullSource.refitted`: the recording's deviation is about its
+    # fit); the noise is what the per-cycle fit leaves (a noise estimate from the first fit's misfit
     # would hold the variability, and one from the high frequencies of rounded areas is
     # biased, enough to flag a recording of the model itself)
     noise = _noise_sd(
@@ -357,7 +358,9 @@ def variability_test(
     )
     still = (np.zeros((replicates, n)), np.ones((replicates, n)))
     nulls = source.draw_with(*still, noise_sd=noise)
-    null = np.array([cycle_deviation(a[:frames], fitted, rec.fps) for a in nulls])
+    null = np.array(
+        [cycle_deviation(a, fitted, rec.fps) for a in source.refitted(nulls[:, :frames])]
+    )
     exceed = int(np.sum(~np.isfinite(null) | (null >= observed)))
     p_value = (1 + exceed) / (1 + replicates)
     if p_value <= alpha:
