@@ -480,12 +480,13 @@ def bootstrap_interval(
     return (centre - half, centre + half)
 
 
-def _refitted_names(jobs, cand) -> tuple[str, ...]:
-    """The parameters that a candidate's refit in ``jobs`` adjusts: the control's (its
-    fitted parameters, S where the problem fits it) and the candidate's tested ones."""
+def _refitted_names(jobs, k: int) -> tuple[str, ...]:
+    """The parameters that candidate ``k``'s refits in ``jobs`` adjust (those any of its
+    jobs frees), S where the problem fits it."""
     problem = jobs.problem
-    control = [n for n, f in zip(problem.names, np.asarray(jobs.frees[0])) if f]
-    return tuple(dict.fromkeys([*control, *cand.tested, *(["S"] if problem.fit_s else [])]))
+    frees = np.asarray(jobs.frees[1:])[np.asarray(jobs.owner) == k].any(axis=0)
+    names = [n for n, f in zip(problem.names, frees) if f]
+    return tuple(names + (["S"] if problem.fit_s else []))
 
 
 def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple:
@@ -510,7 +511,7 @@ def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple
         source.recording,
         source.period,
         int(source.rng.integers(2**32)),
-        fitted=_refitted_names(jobs, cand),
+        fitted=_refitted_names(jobs, k),
     )
     spreads = _spreads(truth, calibration)
     size, n = calibration.batch, calibration.interval_replicates
