@@ -347,9 +347,9 @@ def variability_test(
     )[0]
     # the null: the model's GAW with white noise only, each about the model's GAW after
     # what a refit takes up (`_NullSource.refitted`: the recording's deviation is about its
-    # fit); the noise is what the per-cycle fit leaves (a noise estimate from the first fit's misfit
-    # would hold the variability, and one from the high frequencies of rounded areas is
-    # biased, enough to flag a recording of the model itself)
+    # fit); the noise is what the per-cycle fit leaves (a noise estimate from the first
+    # fit's misfit would hold the variability, and one from the high frequencies of rounded
+    # areas is biased, enough to flag a recording of the model itself)
     noise = _noise_sd(
         np.asarray(problem.measured)[:frames],
         residual[:frames],

@@ -301,16 +301,15 @@ def _deviation(source, areas) -> float:
 
 def variability_size(source: "_NullSource", fitted, kind: Spreads, n: int = 8) -> Spreads:
     """The spreads ``kind`` scaled together so that null recordings show the recording's
-    cycle-to-cycle misfit (`cycle_deviation` about ``fitted``, its fitted GAW; for the
-    null recordings about the clean GAW after what a refit takes up, `_NullSource.refitted`),
-    the excess over what noise alone leaves taken as
-    proportional to the variance, solved twice: a mechanism the model lacks that varies
-    from cycle to cycle shows there too. Where ``kind`` is zero, the trial spreads'
-    proportions (`_TRIAL`). Where the misfit lies within what noise alone leaves, ``kind``
-    itself (zero spreads where it is `variability_kind`'s fallback, `_TRIAL`): the
-    deviation, a mean over the frames, can hide a wander of the timing over the cycles that
-    `variability_measures` see, and null recordings without it would let a candidate that
-    fits the wander pass for an effect."""
+    cycle-to-cycle misfit (`cycle_deviation` about ``fitted``, its fitted GAW; for the null
+    recordings about the clean GAW after what a refit takes up, `_NullSource.refitted`), the
+    excess over what noise alone leaves taken as proportional to the variance, solved twice:
+    a mechanism the model lacks that varies from cycle to cycle shows there too. Where
+    ``kind`` is zero, the trial spreads' proportions (`_TRIAL`). Where the misfit lies
+    within what noise alone leaves, ``kind`` itself (zero spreads where it is
+    `variability_kind`'s fallback, `_TRIAL`): the deviation, a mean over the frames, can
+    hide a wander of the timing over the cycles that `variability_measures` see, and null
+    recordings without it would let a candidate that fits the wander pass for an effect."""
     rec = source.recording
     want = cycle_deviation(rec.area, fitted, rec.fps)
     base = _deviation(source, source.draw(n))
