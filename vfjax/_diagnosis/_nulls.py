@@ -109,6 +109,20 @@ _RELATIVE_STEP = 1e-4
 NO_SPREADS = Spreads()
 
 
+class Normals(NamedTuple):
+    """Standard normal draws of null recordings, one row each, which `_NullSource.draw_from`
+    scales into their timing offsets, the steps of their timing's walk, their amplitude
+    factors (one per slot) and their white noise (one per frame). One set of draws at
+    several spreads (common random numbers) changes a measure only as the spreads change
+    it, not by the draws' own scatter: what `variability_kind` and `variability_size`
+    solve for."""
+
+    offsets: np.ndarray  # (recordings, slots)
+    factors: np.ndarray  # (recordings, slots)
+    steps: np.ndarray  # (recordings, slots)
+    noise: np.ndarray  # (recordings, frames bucket)
+
+
 class _NullSource:
     """Draws recordings from a model: its GAW at the problem's sampling and time shift, with
     cycle-to-cycle variability and white noise at the level of the recording's misfit to
@@ -191,28 +205,51 @@ class _NullSource:
         misfit = areas - clean
         return clean + misfit - (misfit @ self.absorbed) @ self.absorbed.T
 
+    def normals(self, n: int) -> Normals:
+        """Standard normal draws of ``n`` null recordings (`Normals`)."""
+        slots = (n, self.n_slots)
+        return Normals(
+            self.rng.standard_normal(slots),
+            self.rng.standard_normal(slots),
+            self.rng.standard_normal(slots),
+            self.rng.standard_normal((n, self.clean.shape[0])),
+        )
+
     def draw(self, n: int, spreads=NO_SPREADS) -> np.ndarray:
         """``n`` recordings' areas (n, frames bucket), zero beyond the recording, with the
         cycle-to-cycle variability ``spreads`` (`Spreads`)."""
-        return self.draw_with(*self.jitter(n, *spreads))
+        return self.draw_from(self.normals(n), spreads)
+
+    def draw_from(self, normals: Normals, spreads=NO_SPREADS) -> np.ndarray:
+        """`draw` of the recordings whose standard normal draws are ``normals``."""
+        offsets, factors = self.scaled(normals, *spreads)
+        return self.draw_with(offsets, factors, noise=normals.noise)
 
     def jitter(self, n: int, timing_sd: float, amplitude_sd: float, period_sd: float = 0.0):
-        """``n`` rows of timing offsets (s) and amplitude factors, one per slot: offsets of
-        deviation ``timing_sd`` about the model's clock plus a random walk of steps of
-        deviation ``period_sd`` (each cycle's period off by its step) from the slot of the
-        recording's first frame on, and factors of deviation ``amplitude_sd``."""
-        shape = (n, self.n_slots)
-        offsets = timing_sd * self.rng.standard_normal(shape)
-        factors = np.clip(1.0 + amplitude_sd * self.rng.standard_normal(shape), 0.05, None)
+        """``n`` rows of timing offsets (s) and amplitude factors, one per slot (`scaled`)."""
+        return self.scaled(self.normals(n), timing_sd, amplitude_sd, period_sd)
+
+    def scaled(
+        self, normals: Normals, timing_sd: float, amplitude_sd: float, period_sd: float = 0.0
+    ):
+        """Rows of timing offsets (s) and amplitude factors, one per slot, from ``normals``:
+        offsets of deviation ``timing_sd`` about the model's clock plus a random walk of
+        steps of deviation ``period_sd`` (each cycle's period off by its step) from the
+        slot of the recording's first frame on, and factors of deviation
+        ``amplitude_sd``."""
+        offsets = timing_sd * normals.offsets
+        factors = np.clip(1.0 + amplitude_sd * normals.factors, 0.05, None)
         if period_sd > 0:
-            steps = period_sd * self.rng.standard_normal(shape)
+            steps = period_sd * normals.steps
             steps[:, : self.first_slot + 1] = 0.0
             offsets = offsets + np.cumsum(steps, axis=1)
         return offsets, factors
 
-    def draw_with(self, offsets, factors, noise_sd=None) -> np.ndarray:
-        """`draw` with the given rows of timing offsets (s) and amplitude factors (and white
-        noise of deviation ``noise_sd`` where given, else the source's)."""
+    def draw_with(self, offsets, factors, noise_sd=None, noise=None) -> np.ndarray:
+        """`draw` with the given rows of timing offsets (s) and amplitude factors, and white
+        noise of deviation ``noise_sd`` where given (else the source's) times ``noise``
+        (standard normals, one row per recording, the frames bucket long; drawn where
+        None)."""
         n = offsets.shape[0]
         # simulated _DRAW_BATCH at a time: one compiled program for every count
         pad = -n % _DRAW_BATCH
@@ -234,8 +271,9 @@ class _NullSource:
         )[:n]
         frames = self.recording.n_frames
         noise_sd = self.noise_sd if noise_sd is None else noise_sd
-        noisy = clean + noise_sd * self.rng.standard_normal(clean.shape)
-        noisy = np.maximum(noisy, 0.0)
+        if noise is None:
+            noise = self.rng.standard_normal(clean.shape)
+        noisy = np.maximum(clean + noise_sd * noise, 0.0)
         if self.integral:
             noisy = np.round(noisy)
         noisy[:, frames:] = 0.0
@@ -264,15 +302,21 @@ def _measures(source, areas: np.ndarray) -> np.ndarray:
 _TRIAL = Spreads(timing=5e-5, amplitude=0.02, period=3e-5)
 #: The largest spreads the null recordings are given.
 _CEILING = Spreads(timing=2e-3, amplitude=0.3, period=1e-3)
+#: Simulated recordings whose mean measures size the null recordings' variability.
+_SIZING_DRAWS = 64
+#: Scalings of `variability_size`, and the share of the recording's excess over the noise's
+#: cycle deviation within which it stops.
+_SIZING_STEPS = 6
+_SIZING_TOLERANCE = 0.02
 
 
-def variability_kind(source: "_NullSource", fitted, n: int = 16) -> Spreads:
+def variability_kind(source: "_NullSource", fitted, n: int = _SIZING_DRAWS) -> Spreads:
     """The kind of the recording's cycle-to-cycle variability: the spreads (`Spreads`) whose
     null recordings show its `variability_measures` about ``fitted`` (its fitted GAW): the
     per-cycle timing offsets' spread about a line and their differences', and the
-    amplitude factors' spread. Each measure's excess over what noise alone shows (``n``
-    simulated recordings) is taken as linear in the three variances, whose slopes come
-    from ``n`` recordings with each spread alone at its trial value (`_TRIAL`); the
+    amplitude factors' spread. Each measure's excess over what noise alone shows is taken
+    as linear in the three variances, whose slopes come from the same ``n`` simulated
+    recordings (`Normals`) with each spread alone at its trial value (`_TRIAL`); the
     variances are the non-negative least-squares solution, each measure weighed by its
     noise-only value. A period that varies from cycle to cycle (a closure hold of varying
     length, a varying stiffness) makes the timing wander, which offsets that scatter about
@@ -280,13 +324,14 @@ def variability_kind(source: "_NullSource", fitted, n: int = 16) -> Spreads:
     mostly show the noise. Zero spreads where noise alone shows as much."""
     rec = source.recording
     want = variability_measures(rec.area, fitted, rec.fps)
-    base = _measures(source, source.draw(n))
+    normals = source.normals(n)
+    base = _measures(source, source.draw_from(normals))
     if not (np.all(np.isfinite(want)) and np.all(np.isfinite(base)) and np.all(base > 0)):
         return _TRIAL
     columns = []
     for name, trial in zip(Spreads._fields, _TRIAL):
         alone = NO_SPREADS._replace(**{name: trial})
-        columns.append((_measures(source, source.draw(n, alone)) - base) / trial**2)
+        columns.append((_measures(source, source.draw_from(normals, alone)) - base) / trial**2)
     slopes = np.stack(columns, axis=1)
     if not np.all(np.isfinite(slopes)):
         return _TRIAL
@@ -299,29 +344,36 @@ def _deviation(source, areas) -> float:
     return float(_mean_measure(source, areas, lambda *a: (cycle_deviation(*a),), 1)[0])
 
 
-def variability_size(source: "_NullSource", fitted, kind: Spreads, n: int = 8) -> Spreads:
+def variability_size(
+    source: "_NullSource", fitted, kind: Spreads, n: int = _SIZING_DRAWS
+) -> Spreads:
     """The spreads ``kind`` scaled together so that null recordings show the recording's
     cycle-to-cycle misfit (`cycle_deviation` about ``fitted``, its fitted GAW; for the null
-    recordings about the clean GAW after what a refit takes up, `_NullSource.refitted`), the
-    excess over what noise alone leaves taken as proportional to the variance, solved twice:
-    a mechanism the model lacks that varies from cycle to cycle shows there too. Where
-    ``kind`` is zero, the trial spreads' proportions (`_TRIAL`). Where the misfit lies
-    within what noise alone leaves, ``kind`` itself (zero spreads where it is
-    `variability_kind`'s fallback, `_TRIAL`): the deviation, a mean over the frames, can
-    hide a wander of the timing over the cycles that `variability_measures` see, and null
-    recordings without it would let a candidate that fits the wander pass for an effect."""
+    recordings about the clean GAW after what a refit takes up, `_NullSource.refitted`),
+    their mean over ``n`` simulated recordings (one set of draws, `Normals`, at every
+    scale): the excess over what noise alone leaves taken as proportional to the variance,
+    solved until it is within `_SIZING_TOLERANCE` of the recording's (at most
+    `_SIZING_STEPS` times). A mechanism the model lacks that varies from cycle to cycle
+    shows there too. Where ``kind`` is zero, the trial spreads' proportions (`_TRIAL`).
+    Where the misfit lies within what noise alone leaves, ``kind`` itself (zero spreads
+    where it is `variability_kind`'s fallback, `_TRIAL`): the deviation, a mean over the
+    frames, can hide a wander of the timing over the cycles that `variability_measures`
+    see, and null recordings without it would let a candidate that fits the wander pass for
+    an effect."""
     rec = source.recording
     want = cycle_deviation(rec.area, fitted, rec.fps)
-    base = _deviation(source, source.draw(n))
+    normals = source.normals(n)
+    base = _deviation(source, source.draw_from(normals))
     sd = np.asarray(kind if any(kind) else _TRIAL, float)
     if not (np.isfinite(want) and np.isfinite(base)):
         return NO_SPREADS
     if want <= base:
         return NO_SPREADS if kind == _TRIAL else Spreads(*(float(x) for x in kind))
-    for _ in range(2):
-        got = _deviation(source, source.draw(n, Spreads(*sd)))
+    for _ in range(_SIZING_STEPS):
+        got = _deviation(source, source.draw_from(normals, Spreads(*sd)))
         if not np.isfinite(got) or got <= base:
             break
-        sd = sd * math.sqrt((want - base) / (got - base))
-        sd = np.minimum(sd, _CEILING)
+        if abs(got - want) <= _SIZING_TOLERANCE * (want - base):
+            break
+        sd = np.minimum(sd * math.sqrt((want - base) / (got - base)), _CEILING)
     return Spreads(*(float(x) for x in sd))
