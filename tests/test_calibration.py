@@ -154,11 +154,7 @@ def test_null_recordings_tell_a_wandering_timing_from_a_scattered_one(n3):
     its kind loosely: over four seeds its period spread came out at 0.55-1.45 times the
     truth.)"""
     n = 1001
-    area = np.maximum(_area(n3, n), 0.0)
-    period = 1.0 / vfjax.descriptors.fundamental_frequency(area, FPS)
-    plain = vfjax.Recording(area=area, fps=FPS, name="n3")
-    own = _problem_of(n3, plain, vfjax.Sampling(FPS, n, warmup=0.03), period)
-    base = _NullSource(own, n3, 0.0, plain, period, seed=0)
+    own, period, base = _source_of(n3, n)
     assert base.first_slot == int(0.03 / period)
     walk, scatter = Spreads(period=2e-5), Spreads(timing=4e-5)
     offsets, _ = base.jitter(1, *walk)
@@ -186,11 +182,7 @@ def test_null_recordings_variability_is_sized_alike_from_any_draws(n3):
     and the null recordings drawn at each, 128 of them, show the recording's cycle deviation
     within 25 %."""
     n = 201
-    area = np.maximum(_area(n3, n), 0.0)
-    period = 1.0 / vfjax.descriptors.fundamental_frequency(area, FPS)
-    rec = vfjax.Recording(area=area, fps=FPS, name="n3")
-    own = _problem_of(n3, rec, vfjax.Sampling(FPS, n, warmup=0.03), period)
-    base = _NullSource(own, n3, 0.0, rec, period, seed=0)
+    own, period, base = _source_of(n3, n)
     truth = Spreads(timing=5e-5, amplitude=0.015)
     drawn = vfjax.Recording(
         base.draw_with(*base.jitter(1, *truth), noise_sd=1.0)[0, :n], FPS, name="drawn"
@@ -234,6 +226,16 @@ def test_a_null_recordings_misfit_is_measured_after_what_a_refit_takes_up(n3):
     assert np.sum(noise**2) > np.sum(left**2) > (1 - 10 / n) * np.sum(noise**2)
     plain = _NullSource(own, n3, 0.0, rec, period, seed=0)  # no fitted parameters: as drawn
     np.testing.assert_array_equal(plain.refitted(shifted[:, :n]), shifted[:, :n])
+
+
+def _source_of(model, n: int):
+    """The fit problem, the period (s) and a null source (seed 0) of ``model``'s own GAW
+    of ``n`` frames after 30 ms."""
+    area = np.maximum(_area(model, n), 0.0)
+    period = 1.0 / vfjax.descriptors.fundamental_frequency(area, FPS)
+    rec = vfjax.Recording(area=area, fps=FPS, name="model")
+    own = _problem_of(model, rec, vfjax.Sampling(FPS, n, warmup=0.03), period)
+    return own, period, _NullSource(own, model, 0.0, rec, period, seed=0)
 
 
 def _problem_of(model, rec, sampling, period):
