@@ -188,15 +188,14 @@ def test_null_recordings_variability_is_sized_alike_from_any_draws(n3):
         base.draw_with(*base.jitter(1, *truth), noise_sd=1.0)[0, :n], FPS, name="drawn"
     )
     kind = Spreads(timing=1e-5, amplitude=0.003)
+    want = cycle_deviation(drawn.area, base.clean[:n], FPS)  # every source's clean GAW
     sizes, shown = [], []
     for seed in range(1, 5):
         source = _NullSource(own, n3, 0.0, drawn, period, seed, fitted=("S", "K"))
-        clean = source.clean[:n]
-        size = variability_size(source, clean, kind)
+        size = variability_size(source, source.clean[:n], kind)
         assert size.amplitude / size.timing == pytest.approx(0.003 / 1e-5, rel=1e-9)
         sizes.append(size.timing)
         shown.append(_deviation(source, source.draw(128, size)))
-        want = cycle_deviation(drawn.area, clean, FPS)
     assert max(sizes) < 1.15 * min(sizes), sizes
     np.testing.assert_allclose(sizes, truth.timing, rtol=0.35)
     np.testing.assert_allclose(shown, want, rtol=0.25)
