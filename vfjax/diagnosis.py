@@ -28,6 +28,7 @@ from ._diagnosis import (
     refit_each,
     refit_with,
     score_tests,
+    shared_misfit,
 )
 
 __all__ = [
@@ -40,6 +41,7 @@ __all__ = [
     "Criteria",
     "CycleVariability",
     "cycle_deviation",
+    "shared_misfit",
     "Diagnosis",
     "EffectRefit",
     "EffectScore",

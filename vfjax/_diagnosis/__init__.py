@@ -42,10 +42,14 @@ off, or a user's own term), two questions:
    starts, and from its search's fit (a modulation, whose error has many basins, not from
    its search's fit but, with ``Calibration.pool``, from the best of a pool of starts about
    the recording's starting model, `refit_jobs`); a candidate's refit never ends above the
-   control. Each fall is standardised by
-   its F test's p-value (degrees of freedom differ between candidates); a candidate's
-   family-wise p-value is the share of null recordings whose smallest standardised p over
-   all candidates is at most the candidate's own, (1 + count) / (1 + null recordings).
+   control. Each candidate has two statistics: the fall of the whole misfit, and the fall
+   of the misfit that every cycle shares (`shared_misfit`: the NMSE less its
+   `cycle_deviation`), where a missing effect shows even on a recording whose misfit is
+   mostly cycle-to-cycle variability. Each fall is standardised by its F test's p-value
+   (degrees of freedom differ between candidates) and centred on its median over the null
+   recordings; a candidate's family-wise p-value is the share of null recordings whose
+   largest centred statistic, over all candidates and both statistics, reaches the larger
+   of the candidate's own, (1 + count) / (1 + null recordings).
    Null recordings come in batches, and stop as soon as every verdict is decided.
 
 An effect is *needed* when its calibrated p-value is at most ``Criteria.alpha`` and the
@@ -89,7 +93,7 @@ effect is needed, `Diagnosis.verdict` says so in words, with where the model fai
 
 from ._calibration import Calibrated, bootstrap_interval, calibrate
 from ._candidates import DEFAULT_CANDIDATES, Candidate, default_candidates
-from ._cycles import CycleVariability, cycle_deviation
+from ._cycles import CycleVariability, cycle_deviation, shared_misfit
 from ._diagnose import diagnose, extend
 from ._folds import AsymmetryTest, asymmetry_test, per_fold_nmse
 from ._investigate import EXPLAINED_SHARE, Investigation, Outcome, Round, extend_from, investigate
@@ -110,6 +114,7 @@ __all__ = [
     "Criteria",
     "CycleVariability",
     "cycle_deviation",
+    "shared_misfit",
     "Diagnosis",
     "EffectRefit",
     "EffectScore",
