@@ -46,10 +46,11 @@ off, or a user's own term), two questions:
    of the misfit that every cycle shares (`shared_misfit`: the NMSE less its
    `cycle_deviation`), where a missing effect shows even on a recording whose misfit is
    mostly cycle-to-cycle variability. Each fall is standardised by its F test's p-value
-   (degrees of freedom differ between candidates) and centred on its median over the null
-   recordings; a candidate's family-wise p-value is the share of null recordings whose
-   largest centred statistic, over all candidates and both statistics, reaches the larger
-   of the candidate's own, (1 + count) / (1 + null recordings).
+   (degrees of freedom differ between candidates), centred on its median over the recording
+   and the null recordings and scaled by its spread there (never below the F distribution's);
+   a candidate's family-wise p-value is the share of null recordings whose largest
+   standardised statistic, over all candidates and both statistics, reaches the larger of
+   the candidate's own, (1 + count) / (1 + null recordings).
    Null recordings come in batches, and stop as soon as every verdict is decided.
 
 An effect is *needed* when its calibrated p-value is at most ``Criteria.alpha`` and the
@@ -57,7 +58,7 @@ interval of its size (a parametric bootstrap: recordings simulated from the mode
 effect at its refined values, each refitted from them) excludes its off-value; significant
 with an interval that includes it, the effect is "detectable but not identifiable".
 Candidates are ranked by calibrated p-value, ties (several beyond every null recording)
-by their centred statistic (`Calibrated.ranking`); by score p-value without refits. When no
+by their standardised statistic (`Calibrated.ranking`); by score p-value without refits. When no
 effect is needed, `Diagnosis.verdict` says so in words, with where the model fails
 (`vfjax.compare`).
 

@@ -8,9 +8,10 @@ optimum and from the same fixed starts (`refit_jobs`; `Calibration.steps`
 Levenberg-Marquardt steps each, whose Jacobian is computed at every
 `Calibration.jacobian_every`-th step and updated by secants between). A candidate's refit
 never ends worse than its control: the control's optimum, with the effect off, is one of its
-points. The refits' falls are standardised as F-test p-values (`f_p_values`) and compared
-across candidates with a step of max-T (`family_p_values`).
-"""
+points. Each refit's fall of the whole misfit and of the misfit that every cycle shares
+(`shared_misfit`, of the GAWs at the refits' points, `run_statistics`) are standardised as
+F-test p-values (`f_p_values`, `shared_f_p_values`) and compared across candidates with a
+step of max-T (`family_p_values`)."""
 
 import dataclasses
 import math
