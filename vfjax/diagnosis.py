@@ -28,7 +28,6 @@ from ._diagnosis import (
     refit_each,
     refit_with,
     score_tests,
-    shared_misfit,
 )
 
 __all__ = [
@@ -41,7 +40,6 @@ __all__ = [
     "Criteria",
     "CycleVariability",
     "cycle_deviation",
-    "shared_misfit",
     "Diagnosis",
     "EffectRefit",
     "EffectScore",

@@ -33,7 +33,6 @@ from ._statistic import (
     family_p_values,
     refit_groups,
     run_statistics,
-    shared_f_p_values,
 )
 
 
@@ -53,27 +52,23 @@ class Calibrated:
             above the fit's own control).
         values: each candidate's fitted parameters on the recording (refined, for those
             with an interval).
-        f_p_values: each refit's uncalibrated F-test p-value of its fall of the whole
-            misfit (the standardisation of the first statistic).
-        p_values: family-wise p-values (`family_p_values`) over two statistics per
-            candidate, the fall of the whole misfit (``f_p_values``) and of the misfit that
-            every cycle shares (``shared_f_p_values``): (1 + null recordings whose largest
-            standardised statistic over all candidates and both statistics is at least
-            this candidate's larger one) / (1 + null recordings).
-        marginal_p_values: (1 + null recordings whose F-test p-value of the whole misfit's
-            fall for this candidate is at most the recording's) / (1 + null recordings).
+        f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
+        p_values: family-wise p-values (`family_p_values`): (1 + null recordings whose
+            largest centred statistic over all candidates is at least this candidate's) /
+            (1 + null recordings).
+        marginal_p_values: (1 + null recordings whose F-test p-value for this candidate is
+            at most the recording's) / (1 + null recordings).
         replicates: null recordings simulated (fewer than the most when every verdict was
             decided early).
-        null_max_t: the largest standardised statistic over the candidates and both
-            statistics on each null recording.
-        centred: each candidate's larger standardised statistic on the recording (a -log
-            F-test p-value less its median over the recording and the null recordings, over
-            its spread there, `family_p_values`): what its family-wise p-value
+        null_max_t: the largest centred statistic over the candidates on each null
+            recording.
+        centred: each candidate's centred statistic on the recording (its -log F-test
+            p-value less the median over the null recordings): what its family-wise p-value
             compares with ``null_max_t``, and what orders candidates whose p-values tie (at
             the smallest, 1 / (1 + replicates), when several fall beyond every null
             recording).
         search_p_values: each candidate's search refit (``estimates``, swarm and polish)
-            put to the same family-wise test: (1 + null recordings whose largest standardised
+            put to the same family-wise test: (1 + null recordings whose largest centred
             statistic reaches the search refit's) / (1 + null recordings); NaN without a
             search refit or where it is not tested (``tested_searches``). That alone is no
             evidence (the search chose its basin on the recording, a favour the null
@@ -98,13 +93,6 @@ class Calibrated:
             failed), in the order drawn: what ``control_nmse`` is on recordings of the
             fitted model with the recording's noise and cycle-to-cycle variability
             (`fit_p_value`).
-        shared_f_p_values: each refit's uncalibrated F-test p-value of its fall of the
-            misfit that every cycle shares (`vfjax.diagnosis.shared_misfit`, scaled by the
-            refit's whole NMSE; 1 where fewer than three cycles are measured): the second
-            statistic. A missing effect leaves a misfit that repeats in every cycle; on a
-            recording whose misfit is mostly cycle-to-cycle variability, the whole misfit's
-            fall is small beside what variability makes it on null recordings, while the
-            shared misfit's is not.
     """
 
     candidates: tuple
@@ -125,7 +113,6 @@ class Calibrated:
     search_p_values: tuple = ()
     searched_nulls: tuple = ()
     null_controls: tuple = ()
-    shared_f_p_values: tuple = ()
 
     @property
     def fit_p_value(self) -> float:
@@ -142,8 +129,8 @@ class Calibrated:
 
     def ranking(self) -> list[str]:
         """The candidates' names, best first: by family-wise p-value, ties (several
-        candidates beyond every null recording) by the larger standardised statistic, the
-        quantity that p-value ranks, then by the lower refit NMSE."""
+        candidates beyond every null recording) by the larger centred statistic, the quantity
+        that p-value ranks, then by the lower refit NMSE."""
         order = sorted(
             range(len(self.candidates)),
             key=lambda k: (self.p_values[k], -self.centred[k], self.nmse[k]),
@@ -181,12 +168,6 @@ def _searched_nulls(search, k, q_obs, nulls, sizes, limit, most=None):
             if 1 + exceed > limit:
                 break
     return exceed, n
-
-
-def _per_candidate(values: np.ndarray, pick) -> np.ndarray:
-    """Each candidate's ``pick`` (`np.minimum`, `np.maximum`) of its two statistics'
-    ``values`` (2 * candidates: the falls of the whole misfit, then of the shared one)."""
-    return pick(*np.split(np.asarray(values), 2))
 
 
 def _fit_p_value(observed: float, nulls: np.ndarray) -> float:
@@ -294,21 +275,15 @@ def calibrate(
     with _progress_bar(progress, calibration.replicates, recording.name) as bar:
 
         def statistics(rows, nulls):  # ``nulls``: how many of the rows are null recordings
-            out = run_statistics(groups, rows, calibration, n_cands, shared=True)
+            out = run_statistics(groups, rows, calibration, n_cands)
             if bar is not None:
                 bar.update(min(nulls, bar.total - bar.n))
             return out
 
-        def both(c, b, shared):  # each candidate's two statistics: (..., 2 * candidates)
-            sizes = (recording.n_frames, n_fitted, dofs)
-            return np.concatenate(
-                [f_p_values(c, b, *sizes), shared_f_p_values(b, shared, *sizes)], axis=-1
-            )
-
         rows = [observed, source.draw(size - 1, spreads)]
-        cc, cb, yb, sh = statistics(np.concatenate(rows), size - 1)
+        cc, cb, yb = statistics(np.concatenate(rows), size - 1)
         main = groups[0].owner[0]  # a candidate of the shortest warm-up's group
-        q_obs = both(cc[:1], cb[:1], sh[:1])[0]
+        q_obs = f_p_values(cc[:1], cb[:1], recording.n_frames, n_fitted, dofs)[0]
         searched = np.array(
             [math.nan if e is None else float(e.nmse) for e in (estimates or [None] * n_cands)]
         )
@@ -326,26 +301,24 @@ def calibrate(
             )[0],
             1.0,
         )
-        # the search refits' falls of the whole misfit, in the family of both statistics
-        q_search = np.r_[q_search, np.ones(n_cands)]
         # the exceedances that rule a candidate out
         level_count = alpha * (calibration.replicates + 1)
         nulls_q, controls = [], []
-        drawn, c, b, s = rows[1], cc[1:], cb[1:], sh[1:]  # the first batch's null recordings
+        drawn, c, b = rows[1], cc[1:], cb[1:]  # the first batch's null recordings
         kept = []  # each null recording's areas, controls and refits, for a search
         while len(nulls_q) < calibration.replicates:
             if len(c) == 0:
                 drawn = source.draw(size, spreads)
-                c, b, _, s = statistics(drawn, size)
-            q = both(c, b, s)
-            q = np.where(np.isfinite(np.c_[c, c]), q, 0.0)  # a failed null counts against
+                c, b, _ = statistics(drawn, size)
+            q = f_p_values(c, b, recording.n_frames, n_fitted, dofs)
+            q = np.where(np.isfinite(c), q, 0.0)  # a failed null counts against
             take = min(size, calibration.replicates - len(nulls_q))
             nulls_q += list(q[:take])
             controls += list(c[:take, main])
             kept.append((drawn[:take], c[:take], b[:take]))
             c = b = []
-            family = _per_candidate(family_p_values(q_obs, np.asarray(nulls_q))[0], np.minimum)
-            searches = family_p_values(q_search, np.asarray(nulls_q))[0][:n_cands]
+            family = family_p_values(q_obs, np.asarray(nulls_q))[0]
+            searches = family_p_values(q_search, np.asarray(nulls_q))[0]
             open_ = np.minimum(family, np.where(has_search, searches, np.inf))
             # the fit's own goodness (`Calibrated.fit_p_value`): open while the recording's
             # control ends above every null recording's
@@ -357,8 +330,7 @@ def calibrate(
     nulls_q = np.asarray(nulls_q)
     n = len(nulls_q)
     family, marginal, nulls_max, centred = family_p_values(q_obs, nulls_q)
-    family, centred = _per_candidate(family, np.minimum), _per_candidate(centred, np.maximum)
-    search_p = np.where(has_search, family_p_values(q_search, nulls_q)[0][:n_cands], math.nan)
+    search_p = np.where(has_search, family_p_values(q_search, nulls_q)[0], math.nan)
     nmse, searched_nulls = cb[0].copy(), np.zeros(n_cands, int)
     # a search refit that passes against the null recordings' refits from fixed starts, where
     # the candidate's own refit does not: the null recordings are searched alike
@@ -404,9 +376,9 @@ def calibrate(
         controls=tuple(float(x) for x in cc[0]),
         nmse=tuple(float(x) for x in nmse),
         values=tuple(values),
-        f_p_values=tuple(float(x) for x in q_obs[:n_cands]),
+        f_p_values=tuple(float(x) for x in q_obs),
         p_values=tuple(float(x) for x in family),
-        marginal_p_values=tuple(float(x) for x in marginal[:n_cands]),
+        marginal_p_values=tuple(float(x) for x in marginal),
         replicates=n,
         null_max_t=tuple(float(x) for x in nulls_max),
         centred=tuple(float(x) for x in centred),
@@ -416,7 +388,6 @@ def calibrate(
         search_p_values=tuple(float(x) for x in search_p),
         searched_nulls=tuple(int(x) for x in searched_nulls),
         null_controls=tuple(float(x) for x in controls),
-        shared_f_p_values=tuple(float(x) for x in q_obs[n_cands:]),
     )
     if refine is not None:
         estimates = refine(tested)
@@ -555,8 +526,8 @@ def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple
     rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
     values = []
     for i in range(0, len(rows), size):
-        points = run_statistics([from_y], rows[i : i + size], calibration, n_cands).points
-        values += [_values(jobs, row, cand) for row in points[k]]
+        _, _, yb = run_statistics([from_y], rows[i : i + size], calibration, n_cands)
+        values += [_values(jobs, row, cand) for row in yb[k]]
     estimate, values = values[0], values[1 : n + 1]
     return estimate, {
         name: bootstrap_interval(v, [x[name] for x in values], calibration.interval)

@@ -59,16 +59,6 @@ def cycle_deviation(area, fitted, fps: float) -> float:
     return float(np.nansum(dev**2) * per_point / np.sum(a**2))
 
 
-def shared_misfit(area, fitted, fps: float) -> float:
-    """The part of a GAW's misfit that every cycle shares, as a share of its squared area:
-    the NMSE of ``fitted`` less its `cycle_deviation` (the part that changes from cycle to
-    cycle). A missing effect leaves a misfit that repeats in every cycle; cycle-to-cycle
-    variability, which null recordings carry too, mostly one that changes. NaN with fewer
-    than three cycles."""
-    a, g = np.asarray(area, float), np.asarray(fitted, float)
-    return float(np.sum((a - g) ** 2) / np.sum(a**2)) - cycle_deviation(a, g, fps)
-
-
 def cycle_projections(area, fitted, fps: float) -> tuple[np.ndarray, np.ndarray]:
     """Each cycle's misfit read as a timing offset and as an amplitude factor: the residual
     (``area`` - ``fitted``) over each cycle of the fitted GAW projected on the fitted GAW's

@@ -8,14 +8,12 @@ optimum and from the same fixed starts (`refit_jobs`; `Calibration.steps`
 Levenberg-Marquardt steps each, whose Jacobian is computed at every
 `Calibration.jacobian_every`-th step and updated by secants between). A candidate's refit
 never ends worse than its control: the control's optimum, with the effect off, is one of its
-points. Each refit's fall of the whole misfit and of the misfit that every cycle shares
-(`shared_misfit`, of the GAWs at the refits' points, `run_statistics`) are standardised as
-F-test p-values (`f_p_values`, `shared_f_p_values`) and compared across candidates with a
-step of max-T (`family_p_values`)."""
+points. The refits' falls are standardised as F-test p-values (`f_p_values`) and compared
+across candidates with a step of max-T (`family_p_values`).
+"""
 
 import dataclasses
 import math
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -31,7 +29,6 @@ from .._programs import program
 from ..descriptors import fundamental_frequency
 from ..recording import Recording
 from ._candidates import Candidate, extended
-from ._cycles import shared_misfit
 from ._options import DEFAULT_CALIBRATION, Calibration
 
 
@@ -467,72 +464,15 @@ def _members(owner, n_cands: int) -> np.ndarray:
     return np.array(found + [-1] * (n_cands - len(found)))
 
 
-class Statistics(NamedTuple):
-    """The statistic's refits on a batch of recordings (`run_statistics`).
-
-    Attributes:
-        controls: each candidate's control NMSE (recordings, candidates): its group's, or
-            the first group's (the fit's sampling) where that is lower.
-        best: each candidate's best refit NMSE (recordings, candidates).
-        points: per candidate, the points of those refits (recordings, n_y), in its group's
-            coordinates.
-        shared: the misfit that every cycle shares (`shared_misfit`) of each candidate's
-            control and of its best refit (recordings, candidates, 2); NaN where not
-            measured (fewer than three cycles, or not asked for).
-    """
-
-    controls: np.ndarray
-    best: np.ndarray
-    points: list
-    shared: np.ndarray
-
-
-@program
-def _fitted_areas(problem, points, data):
-    """The fitted GAW (the total glottal area, px) at each of ``points`` (recordings,
-    points, n_y) on each recording of ``data`` (rows); a point's coordinates that its refit
-    holds are zero (at their reference values) and the rest are free."""
-
-    def one(measured, ys):
-        p = dataclasses.replace(problem, measured=measured, free=jnp.ones_like(problem.free))
-        norm = jnp.sqrt(jnp.sum(measured**2))
-        return jax.vmap(lambda y: measured + p.residual(y)[: problem.n_out] * norm)(ys)
-
-    return jax.vmap(one)(data, points)
-
-
-def _shared_of(jobs: _Jobs, data, control, points, owners) -> np.ndarray:
-    """`shared_misfit` of the control's points ``control`` (recordings, n_y) and of the
-    candidates' points ``points`` (recordings, candidates, n_y; their owners ``owners``) on
-    the recordings ``data``: (recordings, 1 + candidates)."""
-    problem = jobs.problem
-    frees = np.asarray(jobs.frees)
-    owner = np.asarray(jobs.owner)
-    n_names = len(problem.names)
-    masks = [frees[0]] + [frees[1:][np.flatnonzero(owner == k)[0]] for k in owners]
-    ys = np.concatenate([control[:, None], points], axis=1)
-    held = np.concatenate([np.stack(masks), np.ones((len(masks), ys.shape[2] - n_names))], 1)
-    fitted = np.asarray(_fitted_areas(problem, ys * held[None], np.asarray(data)))
-    n = int(problem.grid.n_frames)
-    fps = float(problem.grid.fps)
-    return np.array(
-        [[shared_misfit(row[:n], g[:n], fps) for g in gs] for row, gs in zip(data, fitted)]
-    )
-
-
-def run_statistics(
-    groups, data: np.ndarray, calibration: Calibration, n_cands: int, shared: bool = False
-) -> Statistics:
+def run_statistics(groups, data: np.ndarray, calibration: Calibration, n_cands: int):
     """The statistic of every group's refits on the recordings ``data`` (rows): each
-    candidate's control NMSE, best refit NMSE and point (`Statistics`), and with
-    ``shared`` the misfit that every cycle shares of each control and best refit.
-    ``calibration``: the refits' steps and Jacobians."""
+    candidate's control NMSE (recordings, candidates): its group's, or the first group's
+    (the fit's sampling) where that is lower; each candidate's best refit NMSE (recordings,
+    candidates) and the points of those refits (per candidate, an array (recordings, n_y)
+    in its group's coordinates). ``calibration``: the refits' steps and Jacobians."""
     controls = np.full((len(data), n_cands), np.nan)
     best_cost = np.full((len(data), n_cands), np.inf)
     best_y = [None] * n_cands
-    shares = np.full((len(data), n_cands, 2), np.nan)
-    of_group = np.full((len(data), n_cands), np.nan)  # each candidate's group's control's
-    first_shared = None
     devices = _shares(len(data))
     parts = np.split(np.asarray(data), len(devices))
     for jobs in groups:
@@ -562,33 +502,21 @@ def run_statistics(
                 for d, rows in zip(devices, parts)
             ]
         )
-        cc, yc, cj, yj = (np.concatenate([np.asarray(o[i]) for o in out]) for i in range(4))
+        cc, _, cj, yj = (np.concatenate([np.asarray(o[i]) for o in out]) for i in range(4))
         owner = np.asarray(jobs.owner)
-        mine = np.unique(owner[owner >= 0])
-        for k in mine:
+        for k in np.unique(owner[owner >= 0]):
             rows = np.flatnonzero(owner == k)
             finite = np.where(np.isfinite(cj[:, rows]), cj[:, rows], np.inf)
             pick = rows[np.argmin(finite, axis=1)]
             controls[:, k] = cc
             best_cost[:, k] = cj[np.arange(len(data)), pick]
             best_y[k] = yj[np.arange(len(data)), pick]
-        if shared:
-            points = np.stack([best_y[k] for k in mine], axis=1)
-            measured = _shared_of(jobs, data, yc, points, mine)
-            of_group[:, mine] = measured[:, :1]
-            shares[:, mine, 1] = measured[:, 1:]
-            if first_shared is None:
-                first_shared = measured[:, 0]
     # a candidate refitted after a longer warm-up answers to the best model without any
     # effect, in whichever sampling: the control after its warm-up can fit the recording far
     # worse than the fit's own (a state at the first frame that a longer warm-up moves into
     # another regime, near a grazing closure), and a fall from there is no evidence
     first = groups[0].owner[0]  # a candidate of the first group
-    if shared:
-        lower = controls[:, first : first + 1] < controls
-        shares[:, :, 0] = np.where(lower, first_shared[:, None], of_group)
-    controls = np.minimum(controls, controls[:, first : first + 1])
-    return Statistics(controls, best_cost, best_y, shares)
+    return np.minimum(controls, controls[:, first : first + 1]), best_cost, best_y
 
 
 def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray:
@@ -607,57 +535,28 @@ def f_p_values(control, refit, n_frames: int, n_fitted: int, dofs) -> np.ndarray
     return stats.f.sf(f, dofs, resid)
 
 
-def shared_f_p_values(refit, shared, n_frames: int, n_fitted: int, dofs) -> np.ndarray:
-    """The F test's p-value of each refit's fall of the misfit that every cycle shares
-    (`shared_misfit`): ``shared`` (..., candidates, 2) holds the control's and the refit's,
-    ``refit`` (..., candidates) the refit's whole NMSE, which scales the fall as in
-    `f_p_values`. 1 where the shared misfit is not measured."""
-    shared = np.asarray(shared, float)
-    fall = shared[..., 0] - shared[..., 1]
-    measured = np.isfinite(fall)
-    refit = np.asarray(refit, float)
-    q = f_p_values(
-        refit + np.where(measured, np.maximum(fall, 0.0), 0.0), refit, n_frames, n_fitted, dofs
-    )
-    return np.where(measured, q, 1.0)
-
-
 def _statistic(q) -> np.ndarray:
     """The test statistic of F-test p-values ``q``: -log q."""
     return -np.log(np.maximum(np.asarray(q, float), 1e-300))
 
 
-#: The spread of the statistic, -log of an F test's p-value, where the F distribution holds
-#: (an exponential of mean 1): its 90th percentile less its median, ln 10 - ln 2.
-_REFERENCE_SPREAD = math.log(5.0)
-
-
 def family_p_values(q_obs, nulls_q):
     """Calibrated p-values of the candidates' F-test p-values on the recording, ``q_obs``
     (candidates,), against those on null recordings, ``nulls_q`` (nulls, candidates): the
-    family-wise ones, the marginal ones, each null recording's largest standardised
-    statistic and the recording's standardised statistics.
+    family-wise ones, the marginal ones, each null recording's largest centred statistic and
+    the recording's centred statistics.
 
-    A step of max-T (Westfall and Young) on standardised statistics: each candidate's
-    statistic, -log of its F-test p-value (a scale common to candidates of different
-    dimension), less its median over the recording and the null recordings, over its spread
-    there (its 90th percentile less its median) in units of the spread it has where the F
-    distribution holds, and never less than that unit. Centred, a candidate whose refit falls
-    far on every recording does not mask the others; scaled, neither does one whose refit
-    falls far on a few (a modulation that takes up a null recording's wandering periods),
-    while a candidate whose null recordings spread no more than the F distribution makes
-    them keeps its F-test scale. The centre and spread are functions of the pooled
-    statistics, the same whichever of them is the recording's: where the recording is
-    exchangeable with its null recordings (no effect), the p-values are valid. A candidate's
-    family-wise p-value is (1 + null recordings whose largest standardised statistic reaches
-    its own) / (1 + null recordings)."""
+    A step of max-T (Westfall and Young) on centred statistics: each candidate's statistic,
+    -log of its F-test p-value (a scale common to candidates of different dimension), less
+    its median over the null recordings, so that a candidate whose refit falls far on every
+    recording does not mask the others, while the rare large falls that any candidate can
+    show on a null recording count at their size. A candidate's family-wise p-value is (1 +
+    null recordings whose largest centred statistic reaches its own) / (1 + null
+    recordings)."""
     obs, nulls = _statistic(q_obs), _statistic(nulls_q)
     n = len(nulls)
-    pooled = np.concatenate([obs[None], nulls])
-    centre = np.median(pooled, axis=0)
-    spread = (np.quantile(pooled, 0.9, axis=0) - centre) / _REFERENCE_SPREAD
-    z = (pooled - centre) / np.maximum(spread, 1.0)
-    largest = z[1:].max(axis=1)
-    family = (1 + (largest[:, None] >= z[0][None, :]).sum(axis=0)) / (n + 1)
+    centre = np.median(nulls, axis=0)
+    largest = (nulls - centre).max(axis=1)
+    family = (1 + (largest[:, None] >= (obs - centre)[None, :]).sum(axis=0)) / (n + 1)
     marginal = (1 + (nulls >= obs[None, :]).sum(axis=0)) / (n + 1)
-    return family, marginal, largest, z[0]
+    return family, marginal, largest, obs - centre
