@@ -42,10 +42,12 @@ off, or a user's own term), two questions:
    starts, and from its search's fit (a modulation, whose error has many basins, not from
    its search's fit but, with ``Calibration.pool``, from the best of a pool of starts about
    the recording's starting model, `refit_jobs`); a candidate's refit never ends above the
-   control. Each fall is standardised by
-   its F test's p-value (degrees of freedom differ between candidates); a candidate's
-   family-wise p-value is the share of null recordings whose smallest standardised p over
-   all candidates is at most the candidate's own, (1 + count) / (1 + null recordings).
+   control. Each fall is put on one scale by its F test's p-value (degrees of freedom
+   differ between candidates), centred on its median over the recording and the null
+   recordings and scaled by its spread there (never below the F distribution's); a
+   candidate's family-wise p-value is the share of null recordings whose largest
+   standardised statistic over all candidates reaches the candidate's own, (1 + count) /
+   (1 + null recordings).
    Null recordings come in batches, and stop as soon as every verdict is decided.
 
 An effect is *needed* when its calibrated p-value is at most ``Criteria.alpha`` and the
@@ -53,7 +55,7 @@ interval of its size (a parametric bootstrap: recordings simulated from the mode
 effect at its refined values, each refitted from them) excludes its off-value; significant
 with an interval that includes it, the effect is "detectable but not identifiable".
 Candidates are ranked by calibrated p-value, ties (several beyond every null recording)
-by their centred statistic (`Calibrated.ranking`); by score p-value without refits. When no
+by their standardised statistic (`Calibrated.ranking`); by score p-value without refits. When no
 effect is needed, `Diagnosis.verdict` says so in words, with where the model fails
 (`vfjax.compare`).
 

@@ -54,21 +54,22 @@ class Calibrated:
             with an interval).
         f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
         p_values: family-wise p-values (`family_p_values`): (1 + null recordings whose
-            largest centred statistic over all candidates is at least this candidate's) /
-            (1 + null recordings).
+            largest standardised statistic over all candidates is at least this
+            candidate's) / (1 + null recordings).
         marginal_p_values: (1 + null recordings whose F-test p-value for this candidate is
             at most the recording's) / (1 + null recordings).
         replicates: null recordings simulated (fewer than the most when every verdict was
             decided early).
-        null_max_t: the largest centred statistic over the candidates on each null
+        null_max_t: the largest standardised statistic over the candidates on each null
             recording.
-        centred: each candidate's centred statistic on the recording (its -log F-test
-            p-value less the median over the null recordings): what its family-wise p-value
+        centred: each candidate's standardised statistic on the recording (its -log F-test
+            p-value less its median over the recording and the null recordings, over its
+            spread there, `family_p_values`): what its family-wise p-value
             compares with ``null_max_t``, and what orders candidates whose p-values tie (at
             the smallest, 1 / (1 + replicates), when several fall beyond every null
             recording).
         search_p_values: each candidate's search refit (``estimates``, swarm and polish)
-            put to the same family-wise test: (1 + null recordings whose largest centred
+            put to the same family-wise test: (1 + null recordings whose largest standardised
             statistic reaches the search refit's) / (1 + null recordings); NaN without a
             search refit or where it is not tested (``tested_searches``). That alone is no
             evidence (the search chose its basin on the recording, a favour the null
@@ -129,8 +130,8 @@ class Calibrated:
 
     def ranking(self) -> list[str]:
         """The candidates' names, best first: by family-wise p-value, ties (several
-        candidates beyond every null recording) by the larger centred statistic, the quantity
-        that p-value ranks, then by the lower refit NMSE."""
+        candidates beyond every null recording) by the larger standardised statistic, the
+        quantity that p-value ranks, then by the lower refit NMSE."""
         order = sorted(
             range(len(self.candidates)),
             key=lambda k: (self.p_values[k], -self.centred[k], self.nmse[k]),

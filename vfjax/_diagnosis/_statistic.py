@@ -540,23 +540,37 @@ def _statistic(q) -> np.ndarray:
     return -np.log(np.maximum(np.asarray(q, float), 1e-300))
 
 
+#: The spread of the statistic, -log of an F test's p-value, where the F distribution holds
+#: (an exponential of mean 1): its 90th percentile less its median, ln 10 - ln 2.
+_REFERENCE_SPREAD = math.log(5.0)
+
+
 def family_p_values(q_obs, nulls_q):
     """Calibrated p-values of the candidates' F-test p-values on the recording, ``q_obs``
     (candidates,), against those on null recordings, ``nulls_q`` (nulls, candidates): the
-    family-wise ones, the marginal ones, each null recording's largest centred statistic and
-    the recording's centred statistics.
+    family-wise ones, the marginal ones, each null recording's largest standardised
+    statistic and the recording's standardised statistics.
 
-    A step of max-T (Westfall and Young) on centred statistics: each candidate's statistic,
-    -log of its F-test p-value (a scale common to candidates of different dimension), less
-    its median over the null recordings, so that a candidate whose refit falls far on every
-    recording does not mask the others, while the rare large falls that any candidate can
-    show on a null recording count at their size. A candidate's family-wise p-value is (1 +
-    null recordings whose largest centred statistic reaches its own) / (1 + null
-    recordings)."""
+    A step of max-T (Westfall and Young) on standardised statistics: each candidate's
+    statistic, -log of its F-test p-value (a scale common to candidates of different
+    dimension), less its median over the recording and the null recordings, over its spread
+    there (its 90th percentile less its median) in units of the spread it has where the F
+    distribution holds, and never less than that unit. Centred, a candidate whose refit falls
+    far on every recording does not mask the others; scaled, neither does one whose refit
+    falls far on a few (a modulation that takes up a null recording's wandering periods),
+    while a candidate whose null recordings spread no more than the F distribution makes
+    them keeps its F-test scale. The centre and spread are functions of the pooled
+    statistics, the same whichever of them is the recording's: where the recording is
+    exchangeable with its null recordings (no effect), the p-values are valid. A candidate's
+    family-wise p-value is (1 + null recordings whose largest standardised statistic reaches
+    its own) / (1 + null recordings)."""
     obs, nulls = _statistic(q_obs), _statistic(nulls_q)
     n = len(nulls)
-    centre = np.median(nulls, axis=0)
-    largest = (nulls - centre).max(axis=1)
-    family = (1 + (largest[:, None] >= (obs - centre)[None, :]).sum(axis=0)) / (n + 1)
+    pooled = np.concatenate([obs[None], nulls])
+    centre = np.median(pooled, axis=0)
+    spread = (np.quantile(pooled, 0.9, axis=0) - centre) / _REFERENCE_SPREAD
+    z = (pooled - centre) / np.maximum(spread, 1.0)
+    largest = z[1:].max(axis=1)
+    family = (1 + (largest[:, None] >= z[0][None, :]).sum(axis=0)) / (n + 1)
     marginal = (1 + (nulls >= obs[None, :]).sum(axis=0)) / (n + 1)
-    return family, marginal, largest, obs - centre
+    return family, marginal, largest, z[0]
