@@ -150,6 +150,8 @@ def test_bad_arguments_are_refused(shared_dir):
         vfjax.Criteria(alpha=0.0)
     with pytest.raises(ValueError, match="confirm_iterations"):
         vfjax.RefitPlan(confirm_iterations=0)
+    with pytest.raises(TypeError, match="confirm_polish"):
+        vfjax.RefitPlan(confirm_polish=100)
     for polished in (0, 1.5, True):
         with pytest.raises(ValueError, match="polished"):
             vfjax.RefitPlan(polished=polished)

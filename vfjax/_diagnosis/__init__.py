@@ -28,8 +28,9 @@ off, or a user's own term), two questions:
    refit of a diagnosis runs through one compiled program, the fitted model extended by
    every candidate, each swarm holding the candidates not its own at their off-values
    (`refit_each`). These refits are where an extension starts (`extend_from`). The control
-   is searched once more with more swarms and iterations (``RefitPlan.confirm_iterations``),
-   and so is the effect to add (the most significant, once the test below finds one).
+   is searched once more with more swarms and iterations (``RefitPlan.confirm_iterations``)
+   and a longer polish (``RefitPlan.confirm_polish``), and so is the effect to add (the most
+   significant, once the test below finds one).
 
    The test (`Calibration`, a parametric bootstrap): from the best fit without any effect,
    null recordings are simulated, each the fitted model with the recording's white noise and

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._fit import FitResult, fit_many, search_range
+from .._fit import FitResult, Polish, fit_many, search_range
 from .._fit._problem import PLAUSIBLE, plausible_range
 from ..presets import initial_model
 from ..recording import Recording
@@ -112,6 +112,7 @@ def refit_each(
     anchor: dict | None = None,
     warmup: float | None = None,
     iterations: int | None = None,
+    polish: Polish | None = None,
 ) -> list[FitResult]:
     """`refit_with` for several candidates at once: ``jobs`` is a list of ``(candidate or
     None, starts)``; returns the best refit of each job.
@@ -135,6 +136,7 @@ def refit_each(
         anchor: values of fitted parameters, a second centre of their search box.
         warmup: simulated time before the first frame (s); default: the fit's.
         iterations: swarm iterations (default: ``plan.swarm``'s).
+        polish: the polish (default: ``plan.polish``).
     """
     cands = [
         None if c is None else c if isinstance(c, Candidate) else Candidate.of(c) for c, _ in jobs
@@ -160,6 +162,7 @@ def refit_each(
                 anchor=anchor,
                 warmup=warmup,
                 iterations=iterations,
+                polish=polish,
             )[0]
             for c, job, rec in zip(cands, jobs, recordings)
         ]
@@ -191,7 +194,7 @@ def refit_each(
         [recordings[j] for j in owner],
         params=union,
         swarm=swarm,
-        polish=plan.polish,
+        polish=plan.polish if polish is None else polish,
         warmup=result.sampling.warmup if warmup is None else warmup,
         substeps=result.sampling.substeps,
         bounds=bounds,
@@ -222,7 +225,8 @@ def anchor_values(result: FitResult, recording: Recording) -> dict:
 def confirm(result, recording, jobs, control, fitted, *, top, plan, anchor, family):
     """Refit the control, and candidate ``top`` (an index into ``fitted``, the effect to add;
     None: the control alone) again with a larger search (`RefitPlan.confirm_search`: more
-    swarms and iterations, scaled by the candidate's dimension), from their quick refits and
+    swarms and iterations, scaled by the candidate's dimension, and a longer polish,
+    `RefitPlan.confirm_polish`), from their quick refits and
     from the jobs' anchored starts; keep each one's better fit. The control gets the same
     search as the candidate, so that the fall it is measured against is not the product of a
     bigger search alone.
@@ -258,7 +262,9 @@ def confirm(result, recording, jobs, control, fitted, *, top, plan, anchor, fami
         nested = {**dict(quick[0].params), **effect}
         own = [dict(quick[1].params), nested] + (from_anchor(cand_starts) or cand_starts[-1:])
         deep.append((cand, cycled(own)))
-    c, *f = refit_each(result, recording, deep, plan, iterations=iterations, **common)
+    c, *f = refit_each(
+        result, recording, deep, plan, iterations=iterations, polish=plan.confirm_polish, **common
+    )
     fitted = list(fitted)
     if cand is not None:
         fitted[top] = min(fitted[top], quick[1], f[0], key=error)
