@@ -67,9 +67,9 @@ class RefitPlan(eqx.Module):
         confirm_polish: the confirming refits' polish, whose fits are reported and whose
             effect sizes the intervals centre on: more steps than ``polish``, since an
             effect that trades off with the fitted parameters leaves a long, curved valley
-            (a hidden mucosal delay of 0.4 ms on N3 whose quick refit has K 18 % above the
-            truth: 30 steps end at tau 0.27 ms and an NMSE 18 % above the valley's floor,
-            100 reach tau 0.41 ms; `tests/test_diagnosis.py`, the hidden-effect matrix).
+            (a hidden mucosal delay of 0.4 ms on N3: 30 steps stop at tau 0.27 ms, K 18 %
+            above the truth and an NMSE 18 % above the valley's floor, 100 reach tau 0.41
+            ms; `tests/test_diagnosis.py`, the hidden-effect matrix).
         batch: fits per compiled batch (the programs are shared by batches up to it).
     """
 
