@@ -26,6 +26,7 @@ from ._diagnosis import (
     extend,
     per_fold_nmse,
     refit_each,
+    refit_replicates,
     refit_with,
     score_tests,
 )
@@ -48,6 +49,7 @@ __all__ = [
     "diagnose",
     "extend",
     "refit_each",
+    "refit_replicates",
     "refit_with",
     "score_tests",
     "Variability",

@@ -83,7 +83,8 @@ effect is needed, `Diagnosis.verdict` says so in words, with where the model fai
 - ``_cycles``: `CycleVariability`, cycle-to-cycle variability tested and sized;
 - ``_candidates``: `Candidate`, the catalogue's candidates and the model extended by them;
 - ``_score``: the score tests and the GAW's sensitivities;
-- ``_refits``: the refits' starts, `refit_each`, the confirming refit;
+- ``_refits``: the refits' starts, `refit_each`, the confirming refit, the bootstrap's
+  replicates refitted (`refit_replicates`);
 - ``_verdict``: `Diagnosis`, `EffectRefit` and the verdict in words;
 - ``_diagnose``: `diagnose` and `extend`;
 - ``_investigate``: `investigate` (fit, diagnose, extend, repeat);
@@ -98,7 +99,7 @@ from ._folds import AsymmetryTest, asymmetry_test, per_fold_nmse
 from ._investigate import EXPLAINED_SHARE, Investigation, Outcome, Round, extend_from, investigate
 from ._nulls import Variability
 from ._options import Calibration, Criteria, RefitPlan
-from ._refits import refit_each, refit_with
+from ._refits import refit_each, refit_replicates, refit_with
 from ._score import EffectScore, score_tests
 from ._verdict import Diagnosis, EffectRefit
 
@@ -127,6 +128,7 @@ __all__ = [
     "extend_from",
     "investigate",
     "refit_each",
+    "refit_replicates",
     "refit_with",
     "score_tests",
     "Variability",

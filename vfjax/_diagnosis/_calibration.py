@@ -24,7 +24,8 @@ from ..descriptors import describe, fundamental_frequency
 from ..recording import Recording
 from ._cycles import CycleVariability, variability_test
 from ._nulls import NO_SPREADS, Variability, _NullSource, variability_kind, variability_size
-from ._options import DEFAULT_CALIBRATION, Calibration
+from ._options import DEFAULT_CALIBRATION, DEFAULT_PLAN, Calibration
+from ._refits import refit_replicates, simulated_like
 from ._statistic import (
     _fit_point,
     _Jobs,
@@ -50,8 +51,8 @@ class Calibrated:
         nmse: each candidate's refit NMSE on the recording (never above the control's in
             its own sampling; above ``controls`` where a refit after a longer warm-up ends
             above the fit's own control).
-        values: each candidate's fitted parameters on the recording (refined, for those
-            with an interval).
+        values: each candidate's fitted parameters on the recording (searched again, for
+            those with an interval).
         f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
         p_values: family-wise p-values (`family_p_values`): (1 + null recordings whose
             largest standardised statistic over all candidates is at least this
@@ -216,14 +217,14 @@ def calibrate(
     whether the recording's control ends above every null recording's) exceed ``alpha``
     whatever the remaining ones show, no more are simulated.
 
-    For each candidate whose p-value is at most ``alpha``, its values refined (its refit on
-    the recording continued from where the statistic's ended) and their interval (a
-    parametric bootstrap: ``calibration.interval_replicates`` recordings simulated from the
-    model with the effect at its fitted values, with the same variability and noise, each
-    refitted from those values; `bootstrap_interval`: bias-corrected, Student's t quantile
-    times their spread either way). Last, where no candidate is significant, the test of
-    cycle-to-cycle variability (`variability_test`), against null recordings with white
-    noise only.
+    For each candidate whose p-value is at most ``alpha``, its values (its refit on the
+    recording searched again from where the statistic's or the search's ended) and their
+    interval (a parametric bootstrap: ``calibration.interval_replicates`` recordings
+    simulated from the model with the effect at those values, with the same variability and
+    noise, each refitted by the same search, `refit_replicates`; `bootstrap_interval`:
+    bias-corrected, Student's t quantile times their spread either way). Last, where no
+    candidate is significant, the test of cycle-to-cycle variability (`variability_test`),
+    against null recordings with white noise only.
 
     ``estimates``: per candidate, a fit of the model with it (`FitResult` or None, such as
     a search's refit on the recording): a start of the statistic's refits for a candidate
@@ -392,6 +393,13 @@ def calibrate(
     )
     if refine is not None:
         estimates = refine(tested)
+    plan = DEFAULT_PLAN if search is None else search.plan
+
+    def replicate_refit(cand, recordings, point, warmup):
+        return refit_replicates(
+            result, recordings, cand, point, plan, family=cands, anchor=anchor, warmup=warmup
+        )
+
     for k, cand in enumerate(cands):
         if family[k] <= alpha:
             jobs, y = group_of[k], yb[k][0]
@@ -404,7 +412,7 @@ def calibrate(
                 # null recordings were searched alike: its basin is the evidence)
                 y = _point_of(jobs.problem, found)
             values[k], intervals[k] = _interval(
-                jobs, source, observed, y, k, cand, calibration, n_cands
+                jobs, source, y, k, cand, tuple(result.params), calibration, replicate_refit
             )
     # cycle-to-cycle variability, where no candidate is significant (a missing effect's
     # misfit trades with the per-cycle factors: the extended fit's diagnosis tests it); its
@@ -490,20 +498,21 @@ def _refitted_names(jobs, k: int) -> tuple[str, ...]:
     return tuple(names + (["S"] if problem.fit_s else []))
 
 
-def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple:
-    """Candidate ``k``'s parameters refined from the point ``y`` of the recording's refit
-    (in its group ``jobs``), and their interval: ``({parameter: value}, {parameter: (low,
-    high)})`` (see `calibrate`).
+def _interval(jobs, source, y, k, cand, names, calibration, refit) -> tuple:
+    """Candidate ``k``'s parameters on the recording and their interval, from the point
+    ``y`` of the recording's refit (in its group ``jobs``): ``({parameter: value},
+    {parameter: (low, high)})`` (see `calibrate`).
 
-    Every refit starts at ``y``, the bootstrap recordings' truth (a start elsewhere, such as
-    the statistic's lattice, can leave a replicate far from its optimum within the fixed
-    steps and inflate the spread); the recording itself rides in the first batch, and its
-    refit from ``y`` is the refined estimate (`bootstrap_interval`). The bootstrap
-    recordings are simulated in the group's sampling, with the white noise and the
-    cycle-to-cycle variability that the recording shows about that truth's GAW: not those
-    of the null recordings, which the fitted model's misfit sizes, the missing effect's
-    included (a large misfit is taken up there as variability at the largest spreads, and
-    replicates of the effect's model drawn with it are refitted far from their truth)."""
+    The bootstrap recordings are simulated from ``y`` in the group's sampling, with the white
+    noise and the cycle-to-cycle variability that the recording shows about that truth's
+    GAW: not those of the null recordings, which the fitted model's misfit sizes, the
+    missing effect's included (a large misfit is taken up there as variability at the
+    largest spreads, and replicates of the effect's model drawn with it are refitted far
+    from their truth). ``refit(cand, recordings, point, warmup)`` refits the candidate on
+    each of them and on the recording itself by a search from ``y``'s values (``point``),
+    as the estimate was made (`refit_replicates`): the recording's refit is the estimate,
+    the others its replicates (`bootstrap_interval`). ``names``: the fitted parameters
+    refitted with the candidate's."""
     model, shift = jobs.problem.unpack(jnp.asarray(y))
     truth = _NullSource(
         jobs.problem,
@@ -514,22 +523,14 @@ def _interval(jobs, source, observed, y, k, cand, calibration, n_cands) -> tuple
         int(source.rng.integers(2**32)),
         fitted=_refitted_names(jobs, k),
     )
-    spreads = _spreads(truth, calibration)
-    size, n = calibration.batch, calibration.interval_replicates
-    own = (np.asarray(jobs.owner) == k)[:, None]
-    from_y = dataclasses.replace(
-        jobs,
-        starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts),
-        rank=jnp.where(own[:, 0], -1, jobs.rank),
-    )
-    drawn = truth.draw(n, spreads)
-    rows = np.concatenate([observed, drawn])
-    rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
-    values = []
-    for i in range(0, len(rows), size):
-        _, _, yb = run_statistics([from_y], rows[i : i + size], calibration, n_cands)
-        values += [_values(jobs, row, cand) for row in yb[k]]
-    estimate, values = values[0], values[1 : n + 1]
+    n, rec = calibration.interval_replicates, source.recording
+    drawn = truth.draw(n, _spreads(truth, calibration))
+    replicates = [simulated_like(rec, a, "replicate") for a in drawn]
+    params = model.params()
+    point = {name: float(params[name]) for name in (*names, *cand.tested, *cand.extra)}
+    fits = refit(cand, [rec, *replicates], point, float(jobs.problem.grid.t_start))
+    values = [{n: float(f.model.params()[n]) for n in cand.tested + cand.extra} for f in fits]
+    estimate, values = values[0], values[1:]
     return estimate, {
         name: bootstrap_interval(v, [x[name] for x in values], calibration.interval)
         for name, v in estimate.items()

@@ -126,9 +126,9 @@ class Calibration(eqx.Module):
             longer fall to alpha needs no more), so a recording with nothing to find costs
             one or two batches.
         interval: level of the confidence interval of a needed effect's size.
-        interval_replicates: recordings simulated from the model with the effect, refitted
-            for its interval (a parametric bootstrap of the estimate); with the recording
-            itself they fill batches of ``batch`` (15: one batch).
+        interval_replicates: recordings simulated from the model with the effect, each
+            refitted by a search for its interval (a parametric bootstrap of the estimate,
+            `vfjax.diagnosis.refit_replicates`), in one batch with the recording itself.
         steps: Levenberg-Marquardt steps of each candidate's refits in the statistic (a few
             suffice: they start at the fit's optimum, the null recordings' truth); the
             control's refit takes twice as many.

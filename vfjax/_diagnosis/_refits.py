@@ -34,7 +34,7 @@ def refit_starts(
         return search_range(model, name) or (-np.inf, np.inf, 0.1)
 
     def near_off(est):
-        return {**est, **{t: cand.point[t] + 0.03 * _range(t)[2] for t in cand.tested}}
+        return just_off(cand, model, est)
 
     ests = list(score.estimates)
     if len(cand.grid) > 1:
@@ -76,6 +76,14 @@ def refit_starts(
             s[name] = float(np.clip(value, low, high))
         starts.append(s)
     return starts
+
+
+def just_off(cand: Candidate, model, values: dict) -> dict:
+    """``values`` with the candidate's tested parameters just off their off-values (3 % of
+    their search scale, `vfjax.search_range` in ``model``): a start whose refit contains the
+    fit without the effect."""
+    scale = {t: (search_range(model, t) or (0.0, 0.0, 0.1))[2] for t in cand.tested}
+    return {**values, **{t: cand.point[t] + 0.03 * scale[t] for t in cand.tested}}
 
 
 def refit_with(
@@ -271,6 +279,67 @@ def confirm(result, recording, jobs, control, fitted, *, top, plan, anchor, fami
     return min(control, quick[0], c, key=error), fitted
 
 
+def refit_replicates(
+    result: FitResult,
+    recordings: Sequence[Recording],
+    cand: Candidate,
+    point: dict,
+    plan: RefitPlan = DEFAULT_PLAN,
+    *,
+    family: Sequence[Candidate],
+    anchor: dict | None = None,
+    warmup: float | None = None,
+) -> list[FitResult]:
+    """The candidate's refit of each of ``recordings`` by a search, as the recording's
+    estimate is made: the bootstrap of an effect's size (`vfjax.diagnosis.Calibrated`'s
+    intervals) refits its replicates so. Where the effect's parameter trades with the
+    fitted ones along a valley of several basins of nearly equal error (a mucosal delay and
+    K), Levenberg-Marquardt steps from the replicates' truth stay in its basin, and the
+    replicates' spread understates the estimate's.
+
+    Each recording is refitted by `refit_each` (one batch) from two swarms (``plan.swarm``):
+    one from ``point`` (values of ``result``'s fitted parameters and the candidate's: the
+    replicates' truth), one from the same with the candidate just off its off-value
+    (`just_off`); the better of the two is polished with ``plan.confirm_polish``, as the
+    confirming refit that gives the recording's estimate is.
+
+    Arguments:
+        result: the fit being diagnosed (its fitted parameters are refitted).
+        recordings: the recordings to refit (of one length and frame rate).
+        cand: the candidate whose parameters are refitted with the fitted ones.
+        point: the starting values, by parameter name.
+        plan: the refits' settings (`RefitPlan`).
+        family: the candidates whose terms the compiled program carries (the diagnosis's).
+        anchor: values of fitted parameters (`anchor_values`), a second centre of the box.
+        warmup: simulated time before the first frame (s); default: the fit's.
+    """
+    starts = [point, just_off(cand, result.model.with_term(cand.term), point)]
+    return refit_each(
+        result,
+        list(recordings),
+        [(cand, starts)] * len(recordings),
+        dataclasses.replace(plan, polished=1),
+        family=family,
+        anchor=anchor,
+        warmup=warmup,
+        polish=plan.confirm_polish,
+    )
+
+
+def simulated_like(recording: Recording, area, kind: str) -> Recording:
+    """A recording simulated in ``recording``'s place (a null recording or a bootstrap
+    replicate, ``kind``): ``area`` cut to its frames, with its frame rate, unit and
+    metadata (its traces, masks and per-fold areas left out)."""
+    return dataclasses.replace(
+        recording,
+        area=np.asarray(area[: recording.n_frames]),
+        name=f"{recording.name} ({kind})",
+        edges=None,
+        masks=None,
+        folds=None,
+    )
+
+
 def error(fit: FitResult) -> float:
     """A fit's NMSE for ranking (a non-finite one ranks last)."""
     return fit.nmse if np.isfinite(fit.nmse) else np.inf
@@ -314,10 +383,7 @@ class NullSearch:
         """Candidate ``k``'s search refit NMSE on each null recording (rows of ``areas``,
         padded beyond the recording's frames)."""
         rec = self.recording
-        nulls = [
-            Recording(np.asarray(a[: rec.n_frames]), rec.fps, name=f"{rec.name} (null)")
-            for a in areas
-        ]
+        nulls = [simulated_like(rec, a, "null") for a in areas]
         jobs = [self._jobs(k, null) for null in nulls]
         fits = refit_each(
             self.result, nulls, jobs, self.plan, family=self.cands, anchor=self.anchor
