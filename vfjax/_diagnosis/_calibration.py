@@ -402,7 +402,7 @@ def calibrate(
 
     for k, cand in enumerate(cands):
         if family[k] <= alpha:
-            jobs, y = group_of[k], yb[k][0]
+            jobs, y, y_nmse = group_of[k], yb[k][0], float(cb[0, k])
             found = None if estimates is None else estimates[k]
             # a fit after another warm-up maps to a point that can fit far worse here (the
             # state at the first frame carries a modulation's history): only a fit in the
@@ -410,9 +410,16 @@ def calibrate(
             same = found is not None and found.sampling.warmup == float(jobs.problem.grid.t_start)
             if (same or k in flagged) and found.nmse < cb[0, k]:  # (the search, where the
                 # null recordings were searched alike: its basin is the evidence)
-                y = _point_of(jobs.problem, found)
+                y, y_nmse = _point_of(jobs.problem, found), float(found.nmse)
             values[k], intervals[k] = _interval(
-                jobs, source, y, k, cand, tuple(result.params), calibration, replicate_refit
+                jobs,
+                source,
+                (y, y_nmse),
+                k,
+                cand,
+                tuple(result.params),
+                calibration,
+                replicate_refit,
             )
     # cycle-to-cycle variability, where no candidate is significant (a missing effect's
     # misfit trades with the per-cycle factors: the extended fit's diagnosis tests it); its
@@ -498,10 +505,10 @@ def _refitted_names(jobs, k: int) -> tuple[str, ...]:
     return tuple(names + (["S"] if problem.fit_s else []))
 
 
-def _interval(jobs, source, y, k, cand, names, calibration, refit) -> tuple:
+def _interval(jobs, source, start, k, cand, names, calibration, refit) -> tuple:
     """Candidate ``k``'s parameters on the recording and their interval, from the point
-    ``y`` of the recording's refit (in its group ``jobs``): ``({parameter: value},
-    {parameter: (low, high)})`` (see `calibrate`).
+    ``y`` of the recording's refit (in its group ``jobs``) and its NMSE, ``start = (y,
+    nmse)``: ``({parameter: value}, {parameter: (low, high)})`` (see `calibrate`).
 
     The bootstrap recordings are simulated from ``y`` in the group's sampling, with the white
     noise and the cycle-to-cycle variability that the recording shows about that truth's
@@ -510,9 +517,10 @@ def _interval(jobs, source, y, k, cand, names, calibration, refit) -> tuple:
     largest spreads, and replicates of the effect's model drawn with it are refitted far
     from their truth). ``refit(cand, recordings, point, warmup)`` refits the candidate on
     each of them and on the recording itself by a search from ``y``'s values (``point``),
-    as the estimate was made (`refit_replicates`): the recording's refit is the estimate,
-    the others its replicates (`bootstrap_interval`). ``names``: the fitted parameters
-    refitted with the candidate's."""
+    as the estimate was made (`refit_replicates`): the recording's refit is the estimate
+    (``y`` where that search ends above it), the others its replicates
+    (`bootstrap_interval`). ``names``: the fitted parameters refitted with the candidate's."""
+    y, y_nmse = start
     model, shift = jobs.problem.unpack(jnp.asarray(y))
     truth = _NullSource(
         jobs.problem,
@@ -531,6 +539,8 @@ def _interval(jobs, source, y, k, cand, names, calibration, refit) -> tuple:
     fits = refit(cand, [rec, *replicates], point, float(jobs.problem.grid.t_start))
     values = [{n: float(f.model.params()[n]) for n in cand.tested + cand.extra} for f in fits]
     estimate, values = values[0], values[1:]
+    if not fits[0].nmse <= y_nmse:  # the search ended above its start (or failed)
+        estimate = {n: float(params[n]) for n in estimate}
     return estimate, {
         name: bootstrap_interval(v, [x[name] for x in values], calibration.interval)
         for name, v in estimate.items()
