@@ -36,7 +36,7 @@ results file, ``diagnosis_oracle.jsonl`` by default).
 
 Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none|cohort-none]
 [--strength weak|medium|strong] [--seed S] [--limit N] [--pool N] [--search-nulls N|all]
-[--warmup S] [--oracle]
+[--interval-search] [--warmup S] [--oracle]
 """
 
 import argparse
@@ -253,6 +253,7 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         else None,
         "pool": calibration.pool,
         "search_nulls": calibration.search_nulls,
+        "interval_search": calibration.interval_search,
         "warmup": warmup,
     }
     if effect is not None:
@@ -350,19 +351,23 @@ def unconfirmed(rows, effect) -> str:
     return f"{true}/{sum(bool(r['unconfirmed']) for r in told)} of {len(told)}"
 
 
-def read_rows(out: pathlib.Path, warmup, search_nulls=DEFAULT_SEARCH_NULLS) -> list[dict]:
+def read_rows(
+    out: pathlib.Path, warmup, search_nulls=DEFAULT_SEARCH_NULLS, interval_search=False
+) -> list[dict]:
     """The rows of a JSON-lines results file (none where it is missing); ValueError where it
-    holds rows of another warm-up (s) or another count of null recordings searched alike
-    (``search_nulls``, None for all), which a run must not mix or skip as done."""
+    holds rows of another warm-up (s), another count of null recordings searched alike
+    (``search_nulls``, None for all) or intervals refitted otherwise (``interval_search``),
+    which a run must not mix or skip as done."""
     rows = [json.loads(x) for x in out.read_text().splitlines() if x] if out.exists() else []
-    other = {r.get("warmup") for r in rows} - {warmup}
-    if other:
-        held = sorted(other, key=str)
-        raise ValueError(f"{out} holds rows of another --warmup ({held}): use another --out")
-    searched = {r.get("search_nulls", DEFAULT_SEARCH_NULLS) for r in rows} - {search_nulls}
-    if searched:
-        held = sorted(searched, key=str)
-        raise ValueError(f"{out} holds rows of another --search-nulls ({held}): use another --out")
+    for option, value, default in (
+        ("warmup", warmup, None),
+        ("search_nulls", search_nulls, DEFAULT_SEARCH_NULLS),
+        ("interval_search", interval_search, False),
+    ):
+        other = {r.get(option, default) for r in rows} - {value}
+        if other:
+            held, flag = sorted(other, key=str), "--" + option.replace("_", "-")
+            raise ValueError(f"{out} holds rows of another {flag} ({held}): use another --out")
     return rows
 
 
@@ -426,6 +431,11 @@ def main():
         help="vfjax.Calibration's search_nulls: a count, or 'all' (default %(default)s)",
     )
     ap.add_argument(
+        "--interval-search",
+        action="store_true",
+        help="vfjax.Calibration's interval_search: refit the intervals' replicates by a search",
+    )
+    ap.add_argument(
         "--warmup",
         type=float,
         default=WARMUP,
@@ -443,7 +453,7 @@ def main():
     default = "diagnosis_oracle.jsonl" if args.oracle else "diagnosis_power.jsonl"
     out = pathlib.Path(args.out or default)
     try:
-        rows = read_rows(out, args.warmup, args.search_nulls)
+        rows = read_rows(out, args.warmup, args.search_nulls, args.interval_search)
     except ValueError as e:
         ap.error(str(e))
     if args.oracle:
@@ -458,7 +468,9 @@ def main():
     if args.strength:
         todo = [c for c in todo if c[3] is None or STRENGTHS[c[3]] == args.strength]
     for case in todo[: args.limit]:
-        calibration = vfjax.Calibration(pool=args.pool, search_nulls=args.search_nulls)
+        calibration = vfjax.Calibration(
+            pool=args.pool, search_nulls=args.search_nulls, interval_search=args.interval_search
+        )
         row = run_case(case, calibration, args.warmup)
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")

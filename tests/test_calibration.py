@@ -786,9 +786,10 @@ def test_a_delay_that_trades_with_the_stiffness_gets_an_interval_that_holds_it()
     structure refitted with the delay held at 0.40, 0.46 and 0.55 ms ends at NMSE 0.071 %,
     0.071 % and 0.076 %), so its estimate lands in one of them: 0.48 ms here. Bootstrap
     replicates refitted by a few Levenberg-Marquardt steps from their truth stay in its
-    basin: their interval, 0.449-0.466 ms, excluded the truth. Refitted by a search, as the
-    estimate is made (`vfjax.diagnosis.refit_replicates`), they land in the other basins
-    too, and the interval holds the truth."""
+    basin: their interval, 0.449-0.466 ms, excluded the truth, and a cubic stiffness was
+    needed beside the delay. Refitted by a search, as the estimate is made
+    (`Calibration(interval_search=True)`, `vfjax.diagnosis.refit_replicates`), they land in
+    the other basins too: the interval holds the truth, and the delay alone is needed."""
     from vfjax.datasets import demo_span, factors_duration
 
     fps, frames, warmup = 4000.0, 201, 0.5
@@ -802,7 +803,7 @@ def test_a_delay_that_trades_with_the_stiffness_gets_an_interval_that_holds_it()
         "N3", 1.0, 0, fps, frames, jitter=0.003, model=jittered, warmup=warmup
     )
     first = vfjax.fit_recording(rec, progress=False)
-    d = vfjax.diagnose(first, rec)
-    assert d.needed[0] == "MucosalDelay", d.verdict
+    d = vfjax.diagnose(first, rec, calibration=vfjax.Calibration(interval_search=True))
+    assert d.needed == ["MucosalDelay"], d.verdict
     low, high = d.refits["MucosalDelay"].interval["tau"]
     assert low <= 4e-4 <= high, (low, high)

@@ -246,6 +246,19 @@ def test_shared_gap_case(shared_dir, capsys):
     search = NullSearch(result, rec, d.candidates, d.plan, anchor, "hac", n_starts)
     again = search(k, np.stack([rec.area, rec.area]))
     np.testing.assert_allclose(again, d.refits["MucosalDelay"].result.nmse, rtol=0.01)
+    # an interval's replicates refitted by a search (`Calibration.interval_search`): from the
+    # gap's refit, the recording's search ends no higher (its point starts the first swarm;
+    # within 0.1 %, the swarm's single precision and its grid of time shifts) and keeps its
+    # gap (the shared recording's basin)
+    gap = next(c for c in d.candidates if c.name == "GlottalGap")
+    fitted = refit.result.model.params()
+    point = {n: float(fitted[n]) for n in (*result.params, "a_gap")}
+    (searched,) = vfjax.diagnosis.refit_replicates(
+        result, [rec], gap, point, d.plan, family=d.candidates, anchor=anchor
+    )
+    assert searched.model.has(GlottalGap) and not searched.model.has(MucosalDelay)
+    assert searched.nmse <= refit.result.nmse * 1.001, (searched.nmse, refit.result.nmse)
+    assert float(searched.model.term(GlottalGap).a_gap) == pytest.approx(point["a_gap"], rel=0.05)
     # the investigation's conclusion: the gap explains the recording; without it, the
     # paper's model leaves the closed phase unexplained
     added = Investigation(rec.name, [Round(result, d, "GlottalGap", refit.result)])

@@ -51,7 +51,7 @@ class Calibrated:
         nmse: each candidate's refit NMSE on the recording (never above the control's in
             its own sampling; above ``controls`` where a refit after a longer warm-up ends
             above the fit's own control).
-        values: each candidate's fitted parameters on the recording (searched again, for
+        values: each candidate's fitted parameters on the recording (refitted again, for
             those with an interval).
         f_p_values: each refit's uncalibrated F-test p-value (the standardisation).
         p_values: family-wise p-values (`family_p_values`): (1 + null recordings whose
@@ -218,10 +218,11 @@ def calibrate(
     whatever the remaining ones show, no more are simulated.
 
     For each candidate whose p-value is at most ``alpha``, its values (its refit on the
-    recording searched again from where the statistic's or the search's ended) and their
+    recording continued from where the statistic's or the search's ended) and their
     interval (a parametric bootstrap: ``calibration.interval_replicates`` recordings
     simulated from the model with the effect at those values, with the same variability and
-    noise, each refitted by the same search, `refit_replicates`; `bootstrap_interval`:
+    noise, each refitted alike, by the statistic's steps or, with
+    ``calibration.interval_search``, by a search, `refit_replicates`; `bootstrap_interval`:
     bias-corrected, Student's t quantile times their spread either way). Last, where no
     candidate is significant, the test of cycle-to-cycle variability (`variability_test`),
     against null recordings with white noise only.
@@ -395,10 +396,13 @@ def calibrate(
         estimates = refine(tested)
     plan = DEFAULT_PLAN if search is None else search.plan
 
-    def replicate_refit(cand, recordings, point, warmup):
+    def searched(cand, recordings, point, warmup):  # the interval's replicates' refits
         return refit_replicates(
             result, recordings, cand, point, plan, family=cands, anchor=anchor, warmup=warmup
         )
+
+    def stepped(k, jobs, y, rows):  # (the same, by the statistic's steps from y)
+        return _stepped_values(jobs, k, cands[k], y, rows, observed, calibration, n_cands)
 
     for k, cand in enumerate(cands):
         if family[k] <= alpha:
@@ -411,15 +415,9 @@ def calibrate(
             if (same or k in flagged) and found.nmse < cb[0, k]:  # (the search, where the
                 # null recordings were searched alike: its basin is the evidence)
                 y, y_nmse = _point_of(jobs.problem, found), float(found.nmse)
+            refit = searched if calibration.interval_search else stepped
             values[k], intervals[k] = _interval(
-                jobs,
-                source,
-                (y, y_nmse),
-                k,
-                cand,
-                tuple(result.params),
-                calibration,
-                replicate_refit,
+                jobs, source, (y, y_nmse), k, cand, tuple(result.params), calibration, refit
             )
     # cycle-to-cycle variability, where no candidate is significant (a missing effect's
     # misfit trades with the per-cycle factors: the extended fit's diagnosis tests it); its
@@ -515,11 +513,13 @@ def _interval(jobs, source, start, k, cand, names, calibration, refit) -> tuple:
     GAW: not those of the null recordings, which the fitted model's misfit sizes, the
     missing effect's included (a large misfit is taken up there as variability at the
     largest spreads, and replicates of the effect's model drawn with it are refitted far
-    from their truth). ``refit(cand, recordings, point, warmup)`` refits the candidate on
-    each of them and on the recording itself by a search from ``y``'s values (``point``),
-    as the estimate was made (`refit_replicates`): the recording's refit is the estimate
-    (``y`` where that search ends above it), the others its replicates
-    (`bootstrap_interval`). ``names``: the fitted parameters refitted with the candidate's."""
+    from their truth). They and the recording itself are refitted from ``y``, and the
+    recording's refit is the estimate (``y`` where its refit ends above it), the others its
+    replicates (`bootstrap_interval`). ``refit`` refits them: with
+    ``calibration.interval_search``, ``refit(cand, recordings, point, warmup)`` by a search
+    from ``y``'s values (``point``: the candidate's and ``names``, the fitted parameters),
+    as the estimate was made (`refit_replicates`), else ``refit(k, jobs, y, rows)`` by the
+    statistic's steps (`_stepped_values`)."""
     y, y_nmse = start
     model, shift = jobs.problem.unpack(jnp.asarray(y))
     truth = _NullSource(
@@ -533,15 +533,41 @@ def _interval(jobs, source, start, k, cand, names, calibration, refit) -> tuple:
     )
     n, rec = calibration.interval_replicates, source.recording
     drawn = truth.draw(n, _spreads(truth, calibration))
-    replicates = [simulated_like(rec, a, "replicate") for a in drawn]
     params = model.params()
-    point = {name: float(params[name]) for name in (*names, *cand.tested, *cand.extra)}
-    fits = refit(cand, [rec, *replicates], point, float(jobs.problem.grid.t_start))
-    values = [{n: float(f.model.params()[n]) for n in cand.tested + cand.extra} for f in fits]
+    at_y = {name: float(params[name]) for name in cand.tested + cand.extra}
+    if calibration.interval_search:
+        replicates = [simulated_like(rec, a, "replicate") for a in drawn]
+        point = {name: float(params[name]) for name in (*names, *cand.tested, *cand.extra)}
+        fits = refit(cand, [rec, *replicates], point, float(jobs.problem.grid.t_start))
+        values = [{n: float(f.model.params()[n]) for n in at_y} for f in fits]
+        ends = fits[0].nmse
+    else:
+        values, ends = refit(k, jobs, y, drawn), y_nmse
     estimate, values = values[0], values[1:]
-    if not fits[0].nmse <= y_nmse:  # the search ended above its start (or failed)
-        estimate = {n: float(params[n]) for n in estimate}
+    if not ends <= y_nmse:  # the recording's refit ended above its start (or failed)
+        estimate = at_y
     return estimate, {
         name: bootstrap_interval(v, [x[name] for x in values], calibration.interval)
         for name, v in estimate.items()
     }
+
+
+def _stepped_values(jobs, k, cand, y, drawn, observed, calibration, n_cands) -> list[dict]:
+    """Candidate ``k``'s values refitted from ``y`` (in its group ``jobs``) on the recording
+    (``observed``) and on each of the ``drawn`` recordings, by the statistic's refits
+    (``calibration.steps`` Levenberg-Marquardt steps, `run_statistics`, in batches of
+    ``calibration.batch``)."""
+    size, n = calibration.batch, len(drawn)
+    own = (np.asarray(jobs.owner) == k)[:, None]
+    from_y = dataclasses.replace(
+        jobs,
+        starts=jnp.where(own, jnp.asarray(y)[None], jobs.starts),
+        rank=jnp.where(own[:, 0], -1, jobs.rank),
+    )
+    rows = np.concatenate([observed, drawn])
+    rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
+    values = []
+    for i in range(0, len(rows), size):
+        _, _, yb = run_statistics([from_y], rows[i : i + size], calibration, n_cands)
+        values += [_values(jobs, row, cand) for row in yb[k]]
+    return values[: n + 1]

@@ -64,8 +64,9 @@ class RefitPlan(eqx.Module):
             further parameter and the iterations grow by a quarter per further parameter
             (the basins of interacting parameters, such as a modulation's frequency and
             phase, are narrow).
-        confirm_polish: the confirming refits' polish, whose fits are reported and whose
-            effect sizes the intervals centre on: more steps than ``polish``, since an
+        confirm_polish: the polish of the confirming refits, whose fits are reported and
+            whose effect sizes the intervals centre on, and of the interval's replicates
+            (`vfjax.diagnosis.refit_replicates`): more steps than ``polish``, since an
             effect that trades off with the fitted parameters leaves a long, curved valley
             (a hidden mucosal delay of 0.4 ms on N3: 30 steps stop at tau 0.27 ms, K 18 %
             above the truth and an NMSE 18 % above the valley's floor, 100 reach tau 0.41
@@ -127,8 +128,17 @@ class Calibration(eqx.Module):
             one or two batches.
         interval: level of the confidence interval of a needed effect's size.
         interval_replicates: recordings simulated from the model with the effect, each
-            refitted by a search for its interval (a parametric bootstrap of the estimate,
-            `vfjax.diagnosis.refit_replicates`), in one batch with the recording itself.
+            refitted for its interval (a parametric bootstrap of the estimate), with the
+            recording itself.
+        interval_search: refit the interval's replicates by a search, as the estimate is
+            made (`vfjax.diagnosis.refit_replicates`), rather than by the statistic's
+            ``steps`` from their truth. Where the effect trades with the fitted parameters
+            along a valley of several basins (a mucosal delay and K), steps from the truth
+            stay in its basin and the interval understates the estimate's scatter (the
+            injection-recovery benchmark's medium delay: the truth inside 4 of 12 intervals
+            against 11 of 12 searched); searched, replicates that land in far basins widen
+            the normal interval across the off-value (its medium gap on N1: a_gap 1.02
+            times the truth, interval -0.09 to 1.57 times; benchmarks/README.md).
         steps: Levenberg-Marquardt steps of each candidate's refits in the statistic (a few
             suffice: they start at the fit's optimum, the null recordings' truth); the
             control's refit takes twice as many.
@@ -181,6 +191,7 @@ class Calibration(eqx.Module):
     batch: int = eqx.field(default=16, converter=int)
     interval: float = eqx.field(default=0.95, converter=float)
     interval_replicates: int = eqx.field(default=15, converter=int)
+    interval_search: bool = False
     steps: int = eqx.field(default=10, converter=int)
     jacobian_every: int = eqx.field(default=3, converter=int)
     variability: bool = True

@@ -292,7 +292,8 @@ def refit_replicates(
 ) -> list[FitResult]:
     """The candidate's refit of each of ``recordings`` by a search, as the recording's
     estimate is made: the bootstrap of an effect's size (`vfjax.diagnosis.Calibrated`'s
-    intervals) refits its replicates so. Where the effect's parameter trades with the
+    intervals) refits its replicates so with `vfjax.Calibration`'s ``interval_search``.
+    Where the effect's parameter trades with the
     fitted ones along a valley of several basins of nearly equal error (a mucosal delay and
     K), Levenberg-Marquardt steps from the replicates' truth stay in its basin, and the
     replicates' spread understates the estimate's.
