@@ -227,6 +227,26 @@ def test_a_null_recordings_misfit_is_measured_after_what_a_refit_takes_up(n3):
     np.testing.assert_array_equal(plain.refitted(shifted[:, :n]), shifted[:, :n])
 
 
+def test_a_refitted_parameter_at_its_bound_takes_a_one_sided_difference(n3):
+    """A null source whose refitted parameters include a delay at its off-value, 0 (a
+    candidate's refit that ended there): the direction along tau is a forward difference,
+    where a central one would build a model with a negative delay (a ValueError); it spans a
+    forward difference taken by hand."""
+    n = 201
+    model = n3.with_effect(vfjax.MucosalDelay(tau=0.0))
+    area = np.maximum(_area(model, n), 0.0)
+    period = 1.0 / vfjax.descriptors.fundamental_frequency(area, FPS)
+    rec = vfjax.Recording(area=area, fps=FPS, name="n3")
+    own = _problem_of(model, rec, vfjax.Sampling(FPS, n, warmup=0.03), period)
+    source = _NullSource(own, model, 0.0, rec, period, seed=0, fitted=("tau",))
+    by_hand = _NullSource(own, model.set(tau=1e-4), 0.0, rec, period, seed=0)
+    column = (by_hand.clean[:n] - source.clean[:n]) / 1e-4  # the step: 1e-4 s at tau = 0
+    q = source.absorbed  # the shift's slope and tau's direction
+    assert q.shape == (n, 2) and np.linalg.norm(column) > 0
+    # (within the 0.3 % that clipping the clean GAWs at zero area leaves)
+    assert np.linalg.norm(column - q @ (q.T @ column)) < 0.01 * np.linalg.norm(column)
+
+
 def _source_of(model, n: int):
     """The fit problem, the period (s) and a null source (seed 0) of ``model``'s own GAW
     of ``n`` frames after 30 ms."""

@@ -180,13 +180,19 @@ class _NullSource:
                 continue
             value = float(values[name])
             step = _RELATIVE_STEP * (abs(value) or 1.0)
+            try:  # a central difference, or a forward one at a bound (a delay at 0)
+                pair = (
+                    self.model.set(**{name: value + step}),
+                    self.model.set(**{name: value - step}),
+                )
+                width = 2 * step
+            except ValueError:
+                pair, width = (self.model.set(**{name: value + step}), self.model), step
             moved = [
-                np.asarray(
-                    _jittered_gaws(self.simulator, self.model.set(**{name: v}), self.shift, *none)
-                )[0, :frames]
-                for v in (value + step, value - step)
+                np.asarray(_jittered_gaws(self.simulator, m, self.shift, *none))[0, :frames]
+                for m in pair
             ]
-            columns.append((moved[0] - moved[1]) / (2 * step))
+            columns.append((moved[0] - moved[1]) / width)
         columns = np.stack(columns, axis=1)
         if not np.all(np.isfinite(columns)):
             return None
