@@ -396,13 +396,28 @@ def calibrate(
         estimates = refine(tested)
     plan = DEFAULT_PLAN if search is None else search.plan
 
-    def searched(cand, recordings, point, warmup):  # the interval's replicates' refits
-        return refit_replicates(
-            result, recordings, cand, point, plan, family=cands, anchor=anchor, warmup=warmup
+    def refitted(k, jobs, y, point, drawn):
+        """Candidate ``k``'s values refitted from ``y`` (``point``, by name) on the recording
+        and on each ``drawn`` recording, and the recording's refit NMSE (None: not
+        measured apart from ``y``'s): by a search (`refit_replicates`) with
+        ``calibration.interval_search``, else by the statistic's steps."""
+        cand = cands[k]
+        if not calibration.interval_search:
+            return _stepped_values(jobs, k, cand, y, drawn, observed, calibration, n_cands), None
+        replicates = [simulated_like(recording, a, "replicate") for a in drawn]
+        warmup = float(jobs.problem.grid.t_start)
+        fits = refit_replicates(
+            result,
+            [recording, *replicates],
+            cand,
+            point,
+            plan,
+            family=cands,
+            anchor=anchor,
+            warmup=warmup,
         )
-
-    def stepped(k, jobs, y, rows):  # (the same, by the statistic's steps from y)
-        return _stepped_values(jobs, k, cands[k], y, rows, observed, calibration, n_cands)
+        names = cand.tested + cand.extra
+        return [{n: float(f.model.params()[n]) for n in names} for f in fits], fits[0].nmse
 
     for k, cand in enumerate(cands):
         if family[k] <= alpha:
@@ -415,9 +430,8 @@ def calibrate(
             if (same or k in flagged) and found.nmse < cb[0, k]:  # (the search, where the
                 # null recordings were searched alike: its basin is the evidence)
                 y, y_nmse = _point_of(jobs.problem, found), float(found.nmse)
-            refit = searched if calibration.interval_search else stepped
             values[k], intervals[k] = _interval(
-                jobs, source, (y, y_nmse), k, cand, tuple(result.params), calibration, refit
+                jobs, source, (y, y_nmse), k, cand, tuple(result.params), calibration, refitted
             )
     # cycle-to-cycle variability, where no candidate is significant (a missing effect's
     # misfit trades with the per-cycle factors: the extended fit's diagnosis tests it); its
@@ -513,13 +527,11 @@ def _interval(jobs, source, start, k, cand, names, calibration, refit) -> tuple:
     GAW: not those of the null recordings, which the fitted model's misfit sizes, the
     missing effect's included (a large misfit is taken up there as variability at the
     largest spreads, and replicates of the effect's model drawn with it are refitted far
-    from their truth). They and the recording itself are refitted from ``y``, and the
-    recording's refit is the estimate (``y`` where its refit ends above it), the others its
-    replicates (`bootstrap_interval`). ``refit`` refits them: with
-    ``calibration.interval_search``, ``refit(cand, recordings, point, warmup)`` by a search
-    from ``y``'s values (``point``: the candidate's and ``names``, the fitted parameters),
-    as the estimate was made (`refit_replicates`), else ``refit(k, jobs, y, rows)`` by the
-    statistic's steps (`_stepped_values`)."""
+    from their truth). They and the recording itself are refitted from ``y`` by
+    ``refit(k, jobs, y, point, drawn)`` (``calibrate``'s: ``point`` holds ``y``'s values of
+    the candidate's parameters and of ``names``, the fitted ones), and the recording's
+    refit is the estimate (``y`` where its refit ends above it), the others its replicates
+    (`bootstrap_interval`)."""
     y, y_nmse = start
     model, shift = jobs.problem.unpack(jnp.asarray(y))
     truth = _NullSource(
@@ -531,20 +543,13 @@ def _interval(jobs, source, start, k, cand, names, calibration, refit) -> tuple:
         int(source.rng.integers(2**32)),
         fitted=_refitted_names(jobs, k),
     )
-    n, rec = calibration.interval_replicates, source.recording
-    drawn = truth.draw(n, _spreads(truth, calibration))
+    drawn = truth.draw(calibration.interval_replicates, _spreads(truth, calibration))
     params = model.params()
     at_y = {name: float(params[name]) for name in cand.tested + cand.extra}
-    if calibration.interval_search:
-        replicates = [simulated_like(rec, a, "replicate") for a in drawn]
-        point = {name: float(params[name]) for name in (*names, *cand.tested, *cand.extra)}
-        fits = refit(cand, [rec, *replicates], point, float(jobs.problem.grid.t_start))
-        values = [{n: float(f.model.params()[n]) for n in at_y} for f in fits]
-        ends = fits[0].nmse
-    else:
-        values, ends = refit(k, jobs, y, drawn), y_nmse
+    point = {name: float(params[name]) for name in (*names, *at_y)}
+    values, ends = refit(k, jobs, y, point, drawn)
     estimate, values = values[0], values[1:]
-    if not ends <= y_nmse:  # the recording's refit ended above its start (or failed)
+    if ends is not None and not ends <= y_nmse:  # the recording's search ended above y
         estimate = at_y
     return estimate, {
         name: bootstrap_interval(v, [x[name] for x in values], calibration.interval)
