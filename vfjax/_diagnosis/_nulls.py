@@ -180,17 +180,14 @@ class _NullSource:
                 continue
             value = float(values[name])
             step = _RELATIVE_STEP * (abs(value) or 1.0)
+            up = self.model.set(**{name: value + step})
             try:  # a central difference, or a forward one at a bound (a delay at 0)
-                pair = (
-                    self.model.set(**{name: value + step}),
-                    self.model.set(**{name: value - step}),
-                )
-                width = 2 * step
+                down, width = self.model.set(**{name: value - step}), 2 * step
             except ValueError:
-                pair, width = (self.model.set(**{name: value + step}), self.model), step
+                down, width = self.model, step
             moved = [
                 np.asarray(_jittered_gaws(self.simulator, m, self.shift, *none))[0, :frames]
-                for m in pair
+                for m in (up, down)
             ]
             columns.append((moved[0] - moved[1]) / width)
         columns = np.stack(columns, axis=1)

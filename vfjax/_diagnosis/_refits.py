@@ -33,9 +33,6 @@ def refit_starts(
     def _range(name):
         return search_range(model, name) or (-np.inf, np.inf, 0.1)
 
-    def near_off(est):
-        return just_off(cand, model, est)
-
     ests = list(score.estimates)
     if len(cand.grid) > 1:
         # far from the linear regime the one-step estimates mislead: add a lattice over the
@@ -50,7 +47,7 @@ def refit_starts(
             lattice = [{**p, **anchor} if i % 2 else p for i, p in enumerate(lattice)]
         ests += lattice
         n += len(ests) - 1
-    proposals = [near_off(ests[0]), ests[0]]
+    proposals = [just_off(cand, model, ests[0]), ests[0]]
     guess = type(cand.term).guess(recording)
     if guess:  # values the data show directly (a closure duration) come second
         proposals.insert(1, {**ests[0], **guess})
@@ -293,10 +290,10 @@ def refit_replicates(
     """The candidate's refit of each of ``recordings`` by a search, as the recording's
     estimate is made: the bootstrap of an effect's size (`vfjax.diagnosis.Calibrated`'s
     intervals) refits its replicates so with `vfjax.Calibration`'s ``interval_search``.
-    Where the effect's parameter trades with the
-    fitted ones along a valley of several basins of nearly equal error (a mucosal delay and
-    K), Levenberg-Marquardt steps from the replicates' truth stay in its basin, and the
-    replicates' spread understates the estimate's.
+    Where the effect's parameter trades with the fitted ones along a valley of several
+    basins of nearly equal error (a mucosal delay and K), Levenberg-Marquardt steps from the
+    replicates' truth stay in its basin, and the replicates' spread understates the
+    estimate's.
 
     Each recording is refitted by `refit_each` (one batch) from two swarms (``plan.swarm``):
     one from ``point`` (values of ``result``'s fitted parameters and the candidate's: the
