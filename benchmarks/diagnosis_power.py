@@ -36,7 +36,7 @@ results file, ``diagnosis_oracle.jsonl`` by default).
 
 Run: python benchmarks/diagnosis_power.py [--out FILE] [--only EFFECT|none|cohort-none]
 [--strength weak|medium|strong] [--seed S] [--limit N] [--pool N] [--search-nulls N|all]
-[--interval-search] [--warmup S] [--oracle]
+[--no-interval-search] [--warmup S] [--oracle]
 """
 
 import argparse
@@ -263,6 +263,20 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         row["recovered"] = refit.values.get(name) if refit is not None else None
         interval = (refit.interval or {}).get(name) if refit is not None else None
         row["interval"] = list(interval) if interval is not None else None
+        # the interval's bootstrap distribution: the size refitted on each replicate
+        drawn = None
+        if (
+            d.calibrated is not None
+            and effect in d.calibrated.candidates[: len(d.calibrated.bootstrap_values)]
+        ):
+            k = d.calibrated.candidates.index(effect)
+            drawn = (d.calibrated.bootstrap_values[k] or {}).get(name)
+        row["bootstrap"] = list(drawn) if drawn is not None else None
+        if drawn is not None and effect in SCALED:  # the GAW's size on each replicate
+            kept = d.calibrated.bootstrap_values[k]
+            scales = kept.get(SCALED[effect])
+            if scales is not None:
+                row["bootstrap_scaled"] = [v * s for v, s in zip(drawn, scales)]
         row["oracle_fall"] = oracle_fall(truth, rec, first, effect, warmup)
         if refit is not None and effect in SCALED:
             # what the GAW fixes: the size times a parameter it trades off against
@@ -352,7 +366,7 @@ def unconfirmed(rows, effect) -> str:
 
 
 def read_rows(
-    out: pathlib.Path, warmup, search_nulls=DEFAULT_SEARCH_NULLS, interval_search=False
+    out: pathlib.Path, warmup, search_nulls=DEFAULT_SEARCH_NULLS, interval_search=True
 ) -> list[dict]:
     """The rows of a JSON-lines results file (none where it is missing); ValueError where it
     holds rows of another warm-up (s), another count of null recordings searched alike
@@ -362,7 +376,7 @@ def read_rows(
     for option, value, default in (
         ("warmup", warmup, None),
         ("search_nulls", search_nulls, DEFAULT_SEARCH_NULLS),
-        ("interval_search", interval_search, False),
+        ("interval_search", interval_search, False),  # (a row without the field: by steps)
     ):
         other = {r.get(option, default) for r in rows} - {value}
         if other:
@@ -432,8 +446,10 @@ def main():
     )
     ap.add_argument(
         "--interval-search",
-        action="store_true",
-        help="vfjax.Calibration's interval_search: refit the intervals' replicates by a search",
+        action=argparse.BooleanOptionalAction,
+        default=vfjax.Calibration().interval_search,
+        help="vfjax.Calibration's interval_search: refit the intervals' replicates by a "
+        "search (default), or by the statistic's steps (--no-interval-search)",
     )
     ap.add_argument(
         "--warmup",

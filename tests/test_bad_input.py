@@ -957,7 +957,8 @@ def test_outputs_have_the_permissions_of_any_file_the_user_writes(tmp_path):
 def test_the_null_recordings_searched_alike_are_a_command_line_option():
     """``--search-nulls`` of `vfjax diagnose` and `vfjax cohort`: a count, or ``all`` (every
     null recording, `vfjax.Calibration(search_nulls=None)`); the default is the
-    calibration's; a negative count or a word is refused with argparse's exit code 2."""
+    calibration's; a negative count or a word is refused with argparse's exit code 2. And
+    ``--no-interval-search``."""
     from vfjax.cli import _calibration, build_parser
 
     parse = build_parser().parse_args
@@ -969,3 +970,7 @@ def test_the_null_recordings_searched_alike_are_a_command_line_option():
         with pytest.raises(SystemExit) as refused:
             parse(["diagnose", "r.csv", "--search-nulls", bad])
         assert refused.value.code == 2
+    # the intervals' replicates: searched by default, by the statistic's steps on request
+    assert _calibration(parse(["diagnose", "r.csv"])).interval_search is True
+    steps = parse(["cohort", "d", "--no-interval-search"])
+    assert _calibration(steps).interval_search is False

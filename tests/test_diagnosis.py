@@ -31,7 +31,7 @@ from vfjax._diagnosis._refits import NullSearch, anchor_values
 from vfjax._diagnosis._score import _estimate, _hac, sensitivities
 from vfjax._diagnosis._verdict import verdict_text
 from vfjax.datasets import demo_recording
-from vfjax.diagnosis import Candidate, default_candidates
+from vfjax.diagnosis import Candidate, bootstrap_interval, default_candidates
 from vfjax.workflow import Investigation, Round
 
 
@@ -237,6 +237,16 @@ def test_shared_gap_case(shared_dir, capsys):
     # the bootstrap interval holds the hidden value
     low, high = refit.interval["a_gap"]
     assert low <= answer["effect_values"]["GlottalGap"] <= high
+    # made from the gap's values refitted on its replicates, which the record keeps (and
+    # only for a candidate with an interval), on the scale of its logarithm (a positive size)
+    cal = d.calibrated
+    kept = cal.bootstrap_values[cal.candidates.index("GlottalGap")]
+    assert len(kept["a_gap"]) == QUICK_LEVEL["calibration"].interval_replicates
+    assert np.all(np.isfinite(kept["a_gap"])) and np.ptp(kept["a_gap"]) > 0
+    level = QUICK_LEVEL["calibration"].interval
+    made = bootstrap_interval(refit.values["a_gap"], kept["a_gap"], level, positive=True)
+    assert made == (low, high)
+    assert [name for name, v in zip(cal.candidates, cal.bootstrap_values) if v] == ["GlottalGap"]
     # a candidate's search run on null recordings as on the recording: given the recording
     # itself twice, in one batch, each search ends where the recording's did (within the
     # swarms' draws, which differ from one batch slot to another: 0.2 %)

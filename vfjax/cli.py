@@ -515,10 +515,12 @@ def _diagnosis_arguments(parser) -> None:
     )
     parser.add_argument(
         "--interval-search",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
+        default=Calibration().interval_search,
         help="refit the bootstrap replicates of a needed effect's interval by a search, as "
-        "its estimate is made, rather than by a few steps from their truth (wider, for an "
-        "effect that trades with the fitted parameters; about 15-30 s more per interval)",
+        "its estimate is made (the default), or, with --no-interval-search, by a few steps "
+        "from their truth (faster, but too narrow for an effect that trades with the "
+        "fitted parameters)",
     )
     parser.add_argument(
         "--seed", type=int, default=0, help="seed of the null recordings (a cohort's fits too)"

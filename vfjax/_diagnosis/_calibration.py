@@ -88,6 +88,10 @@ class Calibrated:
         intervals: per candidate, ``{parameter: (low, high)}`` for those significant at
             alpha, else None.
         interval_level: the intervals' confidence level (``Calibration.interval``).
+        bootstrap_values: per candidate with an interval, ``{parameter: (value, ...)}``:
+            its parameters and the fitted ones refitted on each of the interval's bootstrap
+            recordings, the distribution its interval is made from (`bootstrap_interval`);
+            else None.
         cycles: the test of cycle-to-cycle variability against the fitted model with white
             noise only, and its size (`vfjax.diagnosis.CycleVariability`), where no
             candidate is significant; None otherwise or with fewer than four whole cycles.
@@ -115,6 +119,7 @@ class Calibrated:
     search_p_values: tuple = ()
     searched_nulls: tuple = ()
     null_controls: tuple = ()
+    bootstrap_values: tuple = ()
 
     @property
     def fit_p_value(self) -> float:
@@ -182,11 +187,12 @@ def _dofs(cands) -> np.ndarray:
     return np.array([len(c.tested + c.extra) for c in cands], float)
 
 
-def _values(jobs: _Jobs, y, cand) -> dict:
-    """The candidate's parameter values at the wide problem's point ``y``."""
+def _values(jobs: _Jobs, y, cand, fitted: tuple = ()) -> dict:
+    """The candidate's parameter values at the wide problem's point ``y`` (and those of
+    the ``fitted`` parameters)."""
     model, _ = jobs.problem.unpack(jnp.asarray(y))
     params = model.params()
-    return {n: float(params[n]) for n in cand.tested + cand.extra}
+    return {n: float(params[n]) for n in (*fitted, *cand.tested, *cand.extra)}
 
 
 def calibrate(
@@ -362,6 +368,7 @@ def calibrate(
     group_of = {k: g for g in groups for k in g.owner}
     values = [_values(group_of[k], yb[k][0], c) for k, c in enumerate(cands)]
     intervals = [None] * n_cands
+    replicated = [None] * n_cands
     local = describe(recording.area, recording.fps)
     variability = Variability(
         float(local.jitter),
@@ -403,7 +410,8 @@ def calibrate(
         ``calibration.interval_search``, else by the statistic's steps."""
         cand = cands[k]
         if not calibration.interval_search:
-            return _stepped_values(jobs, k, cand, y, drawn, observed, calibration, n_cands), None
+            stepped = _stepped_values(jobs, k, cand, y, drawn, observed, calibration, n_cands)
+            return stepped, None
         replicates = [simulated_like(recording, a, "replicate") for a in drawn]
         warmup = float(jobs.problem.grid.t_start)
         fits = refit_replicates(
@@ -416,8 +424,7 @@ def calibrate(
             anchor=anchor,
             warmup=warmup,
         )
-        names = cand.tested + cand.extra
-        return [{n: float(f.model.params()[n]) for n in names} for f in fits], fits[0].nmse
+        return [{n: float(f.model.params()[n]) for n in point} for f in fits], fits[0].nmse
 
     for k, cand in enumerate(cands):
         if family[k] <= alpha:
@@ -430,7 +437,7 @@ def calibrate(
             if (same or k in flagged) and found.nmse < cb[0, k]:  # (the search, where the
                 # null recordings were searched alike: its basin is the evidence)
                 y, y_nmse = _point_of(jobs.problem, found), float(found.nmse)
-            values[k], intervals[k] = _interval(
+            values[k], intervals[k], replicated[k] = _interval(
                 jobs, source, (y, y_nmse), k, cand, tuple(result.params), calibration, refitted
             )
     # cycle-to-cycle variability, where no candidate is significant (a missing effect's
@@ -450,7 +457,11 @@ def calibrate(
             alpha,
         )
     return dataclasses.replace(
-        tested, values=tuple(values), intervals=tuple(intervals), cycles=cycles
+        tested,
+        values=tuple(values),
+        intervals=tuple(intervals),
+        bootstrap_values=tuple(replicated),
+        cycles=cycles,
     )
 
 
@@ -476,7 +487,7 @@ def _progress_bar(show: bool | None, total: int, name: str):
 
 
 def bootstrap_interval(
-    estimate: float, replicates: np.ndarray, level: float
+    estimate: float, replicates: np.ndarray, level: float, *, positive: bool = False
 ) -> tuple[float, float]:
     """A parametric bootstrap's confidence interval of a fitted value, bias-corrected.
 
@@ -489,11 +500,23 @@ def bootstrap_interval(
     bias. For an estimate that is normal about the truth plus a bias, its coverage is the
     level exactly.
 
+    A size that is positive, with its off-value at zero (a gap, a delay), is bounded below
+    and errs by factors: its estimate lands in a basin some factor above or below the truth
+    now and then (a medium gap on the paper's N1: a third of the searched replicates at 1.3
+    to 2 times the rest). On the value's own scale such a tail, reflected about the estimate
+    by the bias correction, reaches across zero although no replicate comes near it; on the
+    scale of its logarithm it is the factor it is. With ``positive`` the interval is made
+    there (from the logarithms of the estimate and of the replicates) and mapped back, so it
+    holds only positive sizes, unless a replicate refits to zero or below (the effect
+    switched off, where the logarithm does not exist): then it is made on the value's scale.
+
     Arguments:
         estimate: the value fitted to the recording (in the parameter's units).
         replicates: the value refitted on each bootstrap recording (same units; any
             sequence of numbers); a non-finite one makes the interval NaN (not measured).
         level: the confidence level, in (0, 1).
+        positive: the size is positive with its off-value at zero: the interval is made on
+            the scale of its logarithm where the estimate and every replicate are positive.
 
     Returns:
         ``(low, high)``; NaN for fewer than two replicates. Replicates that all equal one
@@ -502,10 +525,21 @@ def bootstrap_interval(
     values = np.asarray(replicates, dtype=float)
     if values.size < 2:
         return (math.nan, math.nan)
+    if positive and estimate > 0 and np.all(values > 0):
+        low, high = bootstrap_interval(math.log(estimate), np.log(values), level)
+        return (math.exp(low), math.exp(high))
     centre = 2.0 * estimate - float(np.mean(values))
     spread = float(np.std(values, ddof=1)) * math.sqrt(1.0 + 1.0 / values.size)
     half = float(stats.t.ppf(0.5 + level / 2, values.size - 1)) * spread
     return (centre - half, centre + half)
+
+
+def _positive_sizes(cand) -> tuple[str, ...]:
+    """The candidate's tested parameters that are positive sizes with their off-value at
+    zero (a one-sided effect's: a gap, a delay), whose interval is made on the scale of
+    their logarithm (`bootstrap_interval`)."""
+    off = type(cand.term).off_values
+    return tuple(n for n in cand.tested if cand.one_sided and off.get(n) == 0.0)
 
 
 def _refitted_names(jobs, k: int) -> tuple[str, ...]:
@@ -520,7 +554,8 @@ def _refitted_names(jobs, k: int) -> tuple[str, ...]:
 def _interval(jobs, source, start, k, cand, names, calibration, refit) -> tuple:
     """Candidate ``k``'s parameters on the recording and their interval, from the point
     ``y`` of the recording's refit (in its group ``jobs``) and its NMSE, ``start = (y,
-    nmse)``: ``({parameter: value}, {parameter: (low, high)})`` (see `calibrate`).
+    nmse)``: ``({parameter: value}, {parameter: (low, high)}, {parameter: replicates})``
+    (see `calibrate`).
 
     The bootstrap recordings are simulated from ``y`` in the group's sampling, with the white
     noise and the cycle-to-cycle variability that the recording shows about that truth's
@@ -548,13 +583,18 @@ def _interval(jobs, source, start, k, cand, names, calibration, refit) -> tuple:
     at_y = {name: float(params[name]) for name in cand.tested + cand.extra}
     point = {name: float(params[name]) for name in (*names, *at_y)}
     values, ends = refit(k, jobs, y, point, drawn)
-    estimate, values = values[0], values[1:]
+    estimate, values = {n: values[0][n] for n in at_y}, values[1:]
     if ends is not None and not ends <= y_nmse:  # the recording's search ended above y
         estimate = at_y
-    return estimate, {
-        name: bootstrap_interval(v, [x[name] for x in values], calibration.interval)
+    replicated = {name: tuple(x[name] for x in values) for name in values[0]}
+    positive = _positive_sizes(cand)
+    intervals = {
+        name: bootstrap_interval(
+            v, replicated[name], calibration.interval, positive=name in positive
+        )
         for name, v in estimate.items()
     }
+    return estimate, intervals, replicated
 
 
 def _stepped_values(jobs, k, cand, y, drawn, observed, calibration, n_cands) -> list[dict]:
@@ -574,5 +614,5 @@ def _stepped_values(jobs, k, cand, y, drawn, observed, calibration, n_cands) -> 
     values = []
     for i in range(0, len(rows), size):
         _, _, yb = run_statistics([from_y], rows[i : i + size], calibration, n_cands)
-        values += [_values(jobs, row, cand) for row in yb[k]]
+        values += [_values(jobs, row, cand, _refitted_names(jobs, k)) for row in yb[k]]
     return values[: n + 1]

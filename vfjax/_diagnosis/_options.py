@@ -131,14 +131,13 @@ class Calibration(eqx.Module):
             refitted for its interval (a parametric bootstrap of the estimate), with the
             recording itself.
         interval_search: refit the interval's replicates by a search, as the estimate is
-            made (`vfjax.diagnosis.refit_replicates`), rather than by the statistic's
-            ``steps`` from their truth. Where the effect trades with the fitted parameters
+            made (`vfjax.diagnosis.refit_replicates`); False: by the statistic's ``steps``
+            from their truth (faster). Where the effect trades with the fitted parameters
             along a valley of several basins (a mucosal delay and K), steps from the truth
-            stay in its basin and the interval understates the estimate's scatter (the
-            injection-recovery benchmark's medium delay: the truth inside 4 of 12 intervals
-            against 11 of 12 searched); searched, replicates that land in far basins widen
-            the normal interval across the off-value (its medium gap on N1: a_gap 1.02
-            times the truth, interval -0.09 to 1.57 times; benchmarks/README.md).
+            stay in its basin and the interval understates the estimate's scatter: on the
+            injection-recovery benchmark's medium delay the truth lies inside 4 of 12
+            intervals so made, and a cubic stiffness is needed beside the delay on 4 of its
+            6 female recordings, against 12 of 12 and none searched (benchmarks/README.md).
         steps: Levenberg-Marquardt steps of each candidate's refits in the statistic (a few
             suffice: they start at the fit's optimum, the null recordings' truth); the
             control's refit takes twice as many.
@@ -191,7 +190,7 @@ class Calibration(eqx.Module):
     batch: int = eqx.field(default=16, converter=int)
     interval: float = eqx.field(default=0.95, converter=float)
     interval_replicates: int = eqx.field(default=15, converter=int)
-    interval_search: bool = False
+    interval_search: bool = True
     steps: int = eqx.field(default=10, converter=int)
     jacobian_every: int = eqx.field(default=3, converter=int)
     variability: bool = True
