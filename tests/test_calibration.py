@@ -847,10 +847,11 @@ def test_a_delay_that_trades_with_the_stiffness_gets_an_interval_that_holds_it()
     structure refitted with the delay held at 0.40, 0.46 and 0.55 ms ends at NMSE 0.071 %,
     0.071 % and 0.076 %), so its estimate lands in one of them: 0.48 ms here. Bootstrap
     replicates refitted by a few Levenberg-Marquardt steps from their truth stay in its
-    basin (`Calibration(interval_search=False)`: an interval of 0.449-0.466 ms that excludes
-    the truth, and a cubic stiffness needed beside the delay). Refitted by a search, as the
-    estimate is made (the default, `vfjax.diagnosis.refit_replicates`), they land in the
-    other basins too: the interval holds the truth, and the delay alone is needed."""
+    basin (`Calibration(interval_search=False)`): their interval is too narrow to hold the
+    truth (0.449-0.466 ms, a cubic stiffness needed beside the delay; measured on the
+    value's scale). Refitted by a search, as the estimate is made (the default,
+    `vfjax.diagnosis.refit_replicates`), they land in the other basins too: the interval
+    holds the truth, and the delay alone is needed."""
     from vfjax.datasets import demo_span, factors_duration
 
     fps, frames, warmup = 4000.0, 201, 0.5
@@ -868,3 +869,9 @@ def test_a_delay_that_trades_with_the_stiffness_gets_an_interval_that_holds_it()
     assert d.needed == ["MucosalDelay"], d.verdict
     low, high = d.refits["MucosalDelay"].interval["tau"]
     assert low <= 4e-4 <= high, (low, high)
+    # the same diagnosis with the replicates refitted by steps from their truth: the same
+    # estimate, an interval too narrow to hold the truth
+    stepped = vfjax.diagnose(first, rec, calibration=vfjax.Calibration(interval_search=False))
+    assert "MucosalDelay" in stepped.needed, stepped.verdict
+    narrow = stepped.refits["MucosalDelay"].interval["tau"]
+    assert not narrow[0] <= 4e-4 <= narrow[1] and narrow[1] - narrow[0] < high - low, narrow
