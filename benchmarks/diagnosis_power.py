@@ -264,19 +264,15 @@ def run_case(case, calibration=None, warmup=WARMUP) -> dict:
         interval = (refit.interval or {}).get(name) if refit is not None else None
         row["interval"] = list(interval) if interval is not None else None
         # the interval's bootstrap distribution: the size refitted on each replicate
-        drawn = None
-        if (
-            d.calibrated is not None
-            and effect in d.calibrated.candidates[: len(d.calibrated.bootstrap_values)]
-        ):
-            k = d.calibrated.candidates.index(effect)
-            drawn = (d.calibrated.bootstrap_values[k] or {}).get(name)
+        cal = d.calibrated
+        kept = {}
+        if cal is not None and cal.bootstrap_values and effect in cal.candidates:
+            kept = cal.bootstrap_values[cal.candidates.index(effect)] or {}
+        drawn = kept.get(name)
         row["bootstrap"] = list(drawn) if drawn is not None else None
-        if drawn is not None and effect in SCALED:  # the GAW's size on each replicate
-            kept = d.calibrated.bootstrap_values[k]
-            scales = kept.get(SCALED[effect])
-            if scales is not None:
-                row["bootstrap_scaled"] = [v * s for v, s in zip(drawn, scales)]
+        if drawn is not None and SCALED.get(effect) in kept:  # the GAW's size on each one
+            scales = kept[SCALED[effect]]
+            row["bootstrap_scaled"] = [v * s for v, s in zip(drawn, scales)]
         row["oracle_fall"] = oracle_fall(truth, rec, first, effect, warmup)
         if refit is not None and effect in SCALED:
             # what the GAW fixes: the size times a parameter it trades off against
