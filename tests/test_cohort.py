@@ -315,7 +315,10 @@ def test_cohort_diagnoses_and_reports(tmp_path):
         criteria=vfjax.Criteria(alpha=0.05),
         calibration=vfjax.Calibration(replicates=19),
         plan=vfjax.RefitPlan(
-            starts=2, swarm=vfjax.Swarm(size=12, iterations=10), confirm_iterations=None
+            starts=2,
+            swarm=vfjax.Swarm(size=12, iterations=10),
+            confirm_iterations=None,
+            confirm_polish=vfjax.Polish(max_steps=30),
         ),
     )
     frame = vfjax.cohort(tmp_path / "in", tmp_path / "out", options)

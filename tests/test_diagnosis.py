@@ -188,7 +188,10 @@ def _shared(shared_dir, name, **options):
 QUICK_LEVEL = {
     "criteria": vfjax.Criteria(alpha=0.05),
     "calibration": vfjax.Calibration(replicates=19, batch=20),
-    "plan": vfjax.RefitPlan(starts=1, confirm_iterations=None, batch=32),
+    # one polish program (the intervals' replicates polished as the quick refits are)
+    "plan": vfjax.RefitPlan(
+        starts=1, confirm_iterations=None, confirm_polish=vfjax.Polish(max_steps=30), batch=32
+    ),
 }
 
 
@@ -263,9 +266,8 @@ def test_shared_gap_case(shared_dir, capsys):
     gap = next(c for c in d.candidates if c.name == "GlottalGap")
     fitted = refit.result.model.params()
     point = {n: float(fitted[n]) for n in (*result.params, "a_gap")}
-    plan = dataclasses.replace(d.plan, confirm_polish=d.plan.polish)
     (searched,) = vfjax.diagnosis.refit_replicates(
-        result, [rec], gap, point, plan, family=d.candidates, anchor=anchor
+        result, [rec], gap, point, d.plan, family=d.candidates, anchor=anchor
     )
     assert searched.model.has(GlottalGap) and not searched.model.has(MucosalDelay)
     assert searched.nmse <= refit.result.nmse * 1.001, (searched.nmse, refit.result.nmse)
