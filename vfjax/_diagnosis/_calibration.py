@@ -611,8 +611,8 @@ def _stepped_values(jobs, k, cand, y, drawn, observed, calibration, n_cands) -> 
     )
     rows = np.concatenate([observed, drawn])
     rows = np.concatenate([rows, np.repeat(observed, -len(rows) % size, axis=0)])
-    values = []
+    fitted, values = _refitted_names(jobs, k), []
     for i in range(0, len(rows), size):
         _, _, yb = run_statistics([from_y], rows[i : i + size], calibration, n_cands)
-        values += [_values(jobs, row, cand, _refitted_names(jobs, k)) for row in yb[k]]
+        values += [_values(jobs, row, cand, fitted) for row in yb[k]]
     return values[: n + 1]
