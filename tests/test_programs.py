@@ -182,3 +182,46 @@ def test_a_program_under_a_transformation_is_traced_with_it():
     np.testing.assert_allclose(np.asarray(batched[0]), (2.0 * np.asarray(x)) ** 2)
     inside = jax.jit(lambda row: _scaled(row, 3.0, 1)[1])(x[1])
     assert float(inside) == pytest.approx(12.0)
+
+
+def test_kept_programs_are_released_past_the_memory_maps_budget(monkeypatch):
+    """Compiled programs stay in memory while the process's memory maps are under the
+    budget; past it the least recently used are released (their maps unmapped), and a
+    released program called again computes the same values."""
+    _programs.KEPT.clear()
+
+    @_programs.program(store=False)
+    def waves(x, k: int):
+        def body(i, y):
+            return jnp.sin(k * y) + jnp.cos(y * i) * jnp.exp(-y) + jnp.sort(y) ** 2
+
+        y = jax.lax.fori_loop(0, 5, body, x)
+        return jnp.cumsum(y), jnp.tanh(y).sum()
+
+    x = np.linspace(0.0, 1.0, 64)
+    # an unlimited budget: every program is kept, each with memory maps of its own
+    monkeypatch.setattr(_programs, "_map_limit", lambda: 10**9)
+    before = _programs._map_count()
+    first = [waves(x, k) for k in range(8)]
+    kept = _programs._map_count()
+    assert len(_programs.KEPT) == 8 and kept - before >= 8
+    # a budget a little above what the process holds without them: the oldest go first
+    budget = before + (kept - before) // 4
+    monkeypatch.setattr(_programs, "_map_limit", lambda: budget / _programs.MAP_SHARE)
+    again = waves(x, 8)
+    assert 1 <= len(_programs.KEPT) < 8
+    assert _programs._map_count() <= budget or len(_programs.KEPT) == 1
+    assert _programs._map_count() < kept  # released programs are unmapped
+    # the newest is kept; a released one compiles again and computes the same values
+    for k in (8, 0, 1):
+        values = waves(x, k)
+        expected = again if k == 8 else first[k]
+        for a, b in zip(values, expected):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # with no way to count the maps, at most MAX_PROGRAMS are kept
+    monkeypatch.setattr(_programs, "_map_limit", lambda: None)
+    monkeypatch.setattr(_programs, "MAX_PROGRAMS", 3)
+    for k in range(10, 15):
+        waves(x, k)
+    assert len(_programs.KEPT) == 3
+    _programs.KEPT.clear()

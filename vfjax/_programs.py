@@ -1,4 +1,5 @@
-"""Compiled programs kept across processes: traced once per machine, not once per process.
+"""Compiled programs: traced once per machine, not once per process, and kept in memory
+within a bound.
 
 JAX's persistent compilation cache keeps a program's compiled executable, but every process
 still traces and lowers the program's Python function before it can look it up: for the
@@ -12,15 +13,21 @@ same executable, which computes the same bits.
 A signature is everything that shapes the program: the function, the shapes, dtypes and weak
 types of its array arguments, the tree and values of every other argument (static), the
 versions of vfjax's source (a hash of its files), JAX, jaxlib, equinox, lineax and
-optimistix, and the JAX settings that change a lowering. A call runs as a plain
-`equinox.filter_jit` where JAX's persistent compilation cache is off; where an argument holds
-a class or function from outside vfjax and those libraries (a term of the user's own, whose
-code can change under the same name), a device mesh or any other value without a text that
-names it alike in every process; inside a transformation (`jax.vmap`, `jax.jit`); and where
-a program cannot be exported (an output tree of custom nodes: the decorated functions return
-tuples, named tuples marked `returned` and arrays).
+optimistix, and the JAX settings that change a lowering. A call's program is traced as
+`equinox.filter_jit` traces it, not stored, where JAX's persistent compilation cache is off;
+where an argument holds a class or function from outside vfjax and those libraries (a term
+of the user's own, whose code can change under the same name), a device mesh or any other
+value without a text that names it alike in every process; where the decorator says
+``store=False``; and where a program cannot be exported (an output tree of custom nodes).
+
+Either way the compiled program is kept in this process's `KEPT` programs, which release the
+least recently used past a budget of memory maps (`_Kept`): a process that compiles the
+programs of one model structure after another (a cohort, a notebook trying effects) holds a
+bounded number of them, where JAX's own caches would keep every one. Inside a
+transformation (`jax.vmap`, `jax.jit`) a decorated function is part of the caller's trace.
 """
 
+import collections
 import dataclasses
 import enum
 import functools
@@ -41,6 +48,11 @@ import jax
 FOLDER = "vfjax-programs"
 #: Most bytes of exported programs kept; past it the oldest files are removed.
 MAX_BYTES = 256 * 1024**2
+#: Share of the kernel's limit on a process's memory maps up to which compiled programs are
+#: kept in memory (`KEPT`).
+MAP_SHARE = 0.5
+#: Most compiled programs kept in memory where the process's memory maps cannot be counted.
+MAX_PROGRAMS = 64
 _FORMAT = "1"  # the store's layout: a new value makes every stored program a miss
 _PACKAGES = ("jax", "jaxlib", "equinox", "lineax", "optimistix")
 #: The JAX settings that change a program's lowering.
@@ -218,62 +230,180 @@ def returned(cls):
     return cls
 
 
-def program(fn):
+class _Kept:
+    """The compiled programs this process keeps in memory, least recently used released
+    first.
+
+    Each compiled program holds memory maps of its machine code (XLA's CPU executables map
+    their kernels page by page: a fit's programs some 1 500, a diagnosis's some 10 000 a
+    model structure), and Linux refuses a process more than ``vm.max_map_count`` of them
+    (65 530 by default), where XLA's compiler crashes. So the programs are kept while the
+    process's maps stay under `MAP_SHARE` of that limit; past it the least recently used
+    are released (a later call compiles the program again, or loads it from the persistent
+    compilation cache). Where the maps cannot be counted (no ``/proc``), at most
+    `MAX_PROGRAMS` are kept."""
+
+    def __init__(self):
+        self._programs: collections.OrderedDict = collections.OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key):
+        with self._lock:
+            found = self._programs.get(key)
+            if found is not None:
+                self._programs.move_to_end(key)
+            return found
+
+    def put(self, key, compiled) -> None:
+        with self._lock:
+            self._programs[key] = compiled
+            self._programs.move_to_end(key)
+            limit = _map_limit()
+            if limit is None:
+                while len(self._programs) > MAX_PROGRAMS:
+                    self._programs.popitem(last=False)
+                return
+            budget = int(MAP_SHARE * limit)
+            # the newest stays: its caller runs it next
+            while len(self._programs) > 1 and _map_count() > budget:
+                self._programs.popitem(last=False)
+
+    def __len__(self) -> int:
+        return len(self._programs)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._programs.clear()
+
+
+def _map_count() -> int:
+    """How many memory maps this process holds (Linux)."""
+    with open("/proc/self/maps", "rb") as maps:
+        return sum(1 for _ in maps)
+
+
+@functools.cache
+def _map_limit() -> int | None:
+    """The kernel's limit on a process's memory maps, or None where it cannot be read (no
+    ``/proc``: not Linux)."""
+    try:
+        limit = int(pathlib.Path("/proc/sys/vm/max_map_count").read_text())
+        _map_count()
+    except (OSError, ValueError):
+        return None
+    return limit
+
+
+#: The compiled programs of this process (`_Kept`).
+KEPT = _Kept()
+
+
+def _key(call, in_tree, static, leaves):
+    """What names a compiled program within this process: the decorated function, the
+    trees, the static values (with their types: ``1`` and ``True`` are other programs) and
+    each array's dtype, shape, weak type and placement; None where a static value cannot be
+    hashed."""
+    static_leaves, static_tree = jax.tree.flatten(static)
+    key = (
+        call,
+        in_tree,
+        static_tree,
+        tuple((type(x), x) for x in static_leaves),
+        tuple(
+            (x.dtype, x.shape, _weak(x), getattr(x, "sharding", None) if _committed(x) else None)
+            for x in leaves
+        ),
+    )
+    try:
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
+def _committed(x) -> bool:
+    return bool(getattr(x, "committed", False))
+
+
+def program(fn=None, *, store: bool = True):
     """``fn`` compiled as `equinox.filter_jit` does (arrays traced, every other argument
-    static), its exported program kept beside JAX's persistent compilation cache (see the
-    module) so that a later process calls it without tracing. ``fn`` returns arrays in
-    tuples, lists or dicts."""
+    static) and kept in this process's `KEPT` programs (released past the memory maps'
+    budget). With ``store``, its exported program is also kept beside JAX's persistent
+    compilation cache (see the module) so that a later process calls it without tracing;
+    ``fn`` then returns arrays in tuples, lists, dicts or named tuples marked `returned`
+    (``store=False`` for any other output, which cannot be exported)."""
+    if fn is None:
+        return functools.partial(program, store=store)
     jitted = eqx.filter_jit(fn)
-    loaded: dict = {}  # signature -> the jitted call of its exported program
+    unexported: set = set()  # signatures whose program cannot be exported
     lock = threading.Lock()
 
     @functools.wraps(fn)
     def call(*args, **kwargs):
-        folder = _store()
-        if folder is None:
-            return jitted(*args, **kwargs)
         dynamic, static = eqx.partition((args, kwargs), eqx.is_array)
         leaves, in_tree = jax.tree.flatten(dynamic)
         # inside a transformation (vmap, jit, jvp) the program is part of the caller's trace
         if any(isinstance(x, jax.core.Tracer) for x in leaves):
             return jitted(*args, **kwargs)
-        signature = _signature(fn, args, kwargs)
-        if signature is None:
+        key = _key(call, in_tree, static, leaves)
+        if key is None:
             return jitted(*args, **kwargs)
-        with lock:
-            run = loaded.get(signature)
-            if run is None:
-                run = _load(fn, folder, signature, in_tree, static, leaves)
-                loaded[signature] = run
-        if run is False:
-            return jitted(*args, **kwargs)
-        return run(*leaves)
+        compiled = KEPT.get(key)
+        if compiled is None:
+            with lock:  # one compilation of a program at a time
+                compiled = KEPT.get(key)
+                if compiled is None:
+                    compiled = _compile(
+                        fn, store, unexported, args, kwargs, in_tree, static, leaves
+                    )
+                    KEPT.put(key, compiled)
+        return compiled(*leaves)
 
     return call
 
 
+def _compile(fn, store, unexported, args, kwargs, in_tree, static, leaves):
+    """The compiled program of a call: of its stored program where ``store`` and the store
+    is on (exported and stored first if absent), else of ``fn`` traced."""
+    folder = _store() if store else None
+    signature = None if folder is None else _signature(fn, args, kwargs)
+    exported = None
+    if signature is not None and signature not in unexported:
+        exported = _load(fn, folder, signature, in_tree, static, leaves)
+        if exported is None:
+            unexported.add(signature)
+    if exported is None:
+
+        def run(*arrays):
+            args, kwargs = eqx.combine(jax.tree.unflatten(in_tree, arrays), static)
+            return fn(*args, **kwargs)
+
+        name = fn.__name__  # as logs name it
+    else:
+
+        def run(*arrays):
+            return exported.call(*arrays)
+
+        name = f"{fn.__name__}_stored"  # as logs name it: the program's name, marked as stored
+    run.__name__ = run.__qualname__ = name
+    return jax.jit(run).lower(*leaves).compile()
+
+
 def _load(fn, folder, signature, in_tree, static, leaves):
-    """The jitted call of the stored program of ``signature`` (exported and stored first if
-    absent), or False where it cannot be exported."""
+    """The stored program of ``signature`` (`jax.export.Exported`; exported and stored
+    first if absent), or None where it cannot be exported."""
     path = folder / f"{fn.__name__}-{hashlib.sha256(signature.encode()).hexdigest()}.hlo"
     try:
-        exported = jax.export.deserialize(bytearray(path.read_bytes()))
+        return jax.export.deserialize(bytearray(path.read_bytes()))
     except Exception:  # absent, damaged or from another writer: exported below
-        exported = None
-    if exported is None:
-        try:
-            exported = _export(fn, in_tree, static, leaves)
-            data = exported.serialize()
-        except (ValueError, TypeError, NotImplementedError):
-            return False  # an output of custom pytree nodes: not serialisable
-        try:
-            _write(path, bytes(data))
-        except OSError:
-            pass  # an unwritable folder: this process still runs the exported program
-
-    def run(*arrays):
-        return exported.call(*arrays)
-
-    # as logs name it: the program's name, marked as stored
-    run.__name__ = run.__qualname__ = f"{fn.__name__}_stored"
-    return jax.jit(run)
+        pass
+    try:
+        exported = _export(fn, in_tree, static, leaves)
+        data = exported.serialize()
+    except (ValueError, TypeError, NotImplementedError):
+        return None  # an output of custom pytree nodes: not serialisable
+    try:
+        _write(path, bytes(data))
+    except OSError:
+        pass  # an unwritable folder: this process still runs the exported program
+    return exported

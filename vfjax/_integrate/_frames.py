@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._programs import program
 from .._sampling import Sampling, length_bucket
 from ..model import VocalFoldModel
 from ._events import _CHUNK, _DIVERGED, EVENTS_PER_SECOND, _integrate_apart, _integrate_loop
@@ -186,7 +187,7 @@ def sample_window(model, grid: SampledGrid, time_shift, integration, *, n_out: i
     )
 
 
-@eqx.filter_jit
+@program(store=False)
 def simulate_frames(model, grid: SampledGrid, time_shift, *, n_out: int, n_rows: int):
     """The frames of one simulation for the compiled fits: as `simulate` with
     ``reverse_mode=False`` and ``throw=False``, but with every size that depends on the

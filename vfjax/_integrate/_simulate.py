@@ -11,6 +11,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._batching import batched_like
+from .._programs import program
 from .._sampling import Sampling, default_substeps, length_bucket
 from ..model import VocalFoldModel
 from ._events import (
@@ -240,7 +241,7 @@ def _first_frames(sim: Simulation, n_frames: int) -> Simulation:
     return eqx.tree_at(lambda s: [getattr(s, f) for f in _PER_FRAME], sim, cut)
 
 
-@eqx.filter_jit
+@program(store=False)
 def _first_frames_traced(sim: Simulation, n_frames: int) -> Simulation:
     """`_first_frames` as a program (under a transformation, or for arrays committed to a
     device): one small program per bucket and count, in place of a simulation's program
@@ -252,7 +253,7 @@ def _first_frames_traced(sim: Simulation, n_frames: int) -> Simulation:
     )
 
 
-@eqx.filter_jit
+@program(store=False)
 def _simulate(
     model,
     time_shift,
