@@ -235,7 +235,7 @@ class _Kept:
     first.
 
     Each compiled program holds memory maps of its machine code (XLA's CPU executables map
-    their kernels page by page: a fit's programs some 1 500, a diagnosis's some 10 000 a
+    their kernels page by page: a fit's programs some 1 400, a diagnosis's 9 000-17 000 a
     model structure), and Linux refuses a process more than ``vm.max_map_count`` of them
     (65 530 by default), where XLA's compiler crashes. So the programs are kept while the
     process's maps stay under `MAP_SHARE` of that limit; past it the least recently used
