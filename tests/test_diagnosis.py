@@ -223,6 +223,7 @@ def test_shared_no_effect_case_flags_nothing(shared_dir):
 @pytest.mark.xdist_group("diagnosis")
 def test_shared_gap_case(shared_dir, capsys):
     rec, answer, result, d = _shared(shared_dir, "syn_gap", **QUICK_LEVEL, progress=True)
+    assert d.held == {} and "Caution" not in d.verdict  # a first fit holds nothing it adjusts
     # progress: a line per candidate on stdout, the calibration's bar on stderr, counting
     # its null recordings to the most the calibration may draw
     out, err = capsys.readouterr()
@@ -500,6 +501,16 @@ def test_score_only_diagnosis_and_its_report(tmp_path, report_html):
     d = vfjax.diagnose(result, rec, plan=None)
     assert d.refits == {} and d.control is None
     assert d.ranking[0] == "GlottalGap" and d.scores["GlottalGap"].direction == +1
+    # the fit held the closure duration, which a first fit adjusts (the recording states its
+    # pressure, which is held alike); where an effect is named, the verdict says that it may
+    # stand in for the closure duration
+    t_c = float(result.model.params()["t_c"])
+    assert d.held == {"t_c": (t_c, "s")}
+    assert d.needed == [] and "Caution" not in d.verdict
+    named = verdict_text(dataclasses.replace(d, needed=["GlottalGap"]))
+    assert named.startswith("GlottalGap is missing")
+    assert f"Caution: the diagnosed fit held t_c at {t_c:.4g} s, where a first fit" in named
+    assert "an effect found here may stand in for it. Diagnose a first fit to tell." in named
     path = vfjax.report.write_report(d, rec, tmp_path)
     text = path.read_text()
     for name in d.ranking:

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from .._fit import FitResult, Swarm, default_warmup, fit
+from .._fit import FitResult, Swarm, default_warmup, first_fit_parameters, fit
 from ..compare import compare, noise_level
 from ..recording import Recording
 from ..terms import AbstractTerm
@@ -193,8 +193,16 @@ def diagnose(
         noise_nmse,
         "",
         cal,
+        _held(result, recording),
     )
     return dataclasses.replace(diag, verdict=verdict_text(diag))
+
+
+def _held(result: FitResult, recording: Recording) -> dict:
+    """`Diagnosis.held`: what a first fit of ``recording`` adjusts that ``result`` held."""
+    values, units = result.model.params(), result.model.parameter_units()
+    names = first_fit_parameters(recording, result.model)
+    return {n: (float(values[n]), units[n]) for n in names if n not in result.params}
 
 
 def _noise_nmse(recording, fits, sse_scale) -> float:

@@ -109,6 +109,11 @@ class Diagnosis:
         verdict: the conclusion in words.
         calibrated: the calibration's record (`vfjax.diagnosis.Calibrated`: null recordings, their
             variability, p-values), None without refits.
+        held: the parameters that a first fit of the recording adjusts
+            (`vfjax.first_fit_parameters`: the closure duration t_c, and the subglottal
+            pressure P_s where the recording does not state it) but the diagnosed fit held at
+            its model's values, ``{name: (value, unit)}``. The refits hold them too, so an
+            effect found may stand in for one of them; the verdict then says so.
     """
 
     result: FitResult
@@ -125,6 +130,7 @@ class Diagnosis:
     noise_nmse: float
     verdict: str
     calibrated: object = None
+    held: dict = dataclasses.field(default_factory=dict)
 
     @property
     def level(self) -> float:
@@ -269,6 +275,7 @@ def verdict_text(d: Diagnosis) -> str:
                     "diagnose the extended fit for a second round"
                 )
         lines.append(text)
+        lines += _held_text(d)
         lines += _unassessed_text(d)
         return ". ".join(lines) + "."
     significant = [n for n in d.ranking if evidence(d.scores[n], d.refits.get(n)) <= d.level]
@@ -295,6 +302,8 @@ def verdict_text(d: Diagnosis) -> str:
             f"recording's noise and cycle-to-cycle variability (smallest p = {smallest:.2g}; "
             f"NMSE {before:.3%}, {floor})"
         )
+    if significant or d.unconfirmed:
+        lines += _held_text(d)
     lines += _unassessed_text(d)
     lines += _unconfirmed_text(d)
     lines += _goodness_text(d)
@@ -311,6 +320,20 @@ def verdict_text(d: Diagnosis) -> str:
 #: effect before the verdict names it as not assessed: the two can come from different
 #: warm-ups, whose optima differ by rounding where the fitted model fits both alike.
 _ABOVE = 0.01
+
+
+def _held_text(d: Diagnosis) -> list[str]:
+    """The sentence on the parameters the diagnosed fit held where a first fit adjusts them
+    (`Diagnosis.held`), said wherever an effect is found or nearly found."""
+    if not d.held:
+        return []
+    listed = ", ".join(f"{name} at {value:.4g} {unit}" for name, (value, unit) in d.held.items())
+    it = "them" if len(d.held) > 1 else "it"
+    return [
+        f"Caution: the diagnosed fit held {listed}, where a first fit of the recording "
+        f"(vfjax.fit_recording) adjusts {it}, and the refits hold {it} too: an effect found "
+        f"here may stand in for {it}. Diagnose a first fit to tell"
+    ]
 
 
 def _unassessed_text(d: Diagnosis) -> list[str]:
