@@ -1,5 +1,6 @@
 """Shared fixtures. The shared data folder sits beside the checkout (../shared)."""
 
+import gc
 import os
 import pathlib
 import shutil
@@ -39,6 +40,16 @@ def pytest_unconfigure(config):
     folder = getattr(config, "_vfjax_cache", None)
     if folder:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def pytest_runtest_logfinish(nodeid, location):
+    """After each test, its garbage collected and what it leaves alive frozen
+    (`gc.freeze`): Python's full collections then walk only what later tests make. A test
+    process holds over a million objects after a few fits (JAX's traces and caches, the
+    imported libraries), and each full collection walks them all: without this, a test that
+    makes many objects (a video decoded by PyAV) spends seconds collecting."""
+    gc.collect()
+    gc.freeze()
 
 
 @pytest.fixture(scope="session")
