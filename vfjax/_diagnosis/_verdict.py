@@ -110,10 +110,11 @@ class Diagnosis:
         calibrated: the calibration's record (`vfjax.diagnosis.Calibrated`: null recordings, their
             variability, p-values), None without refits.
         held: the parameters that a first fit of the recording adjusts
-            (`vfjax.first_fit_parameters`: the closure duration t_c, and the subglottal
-            pressure P_s where the recording does not state it) but the diagnosed fit held at
-            its model's values, ``{name: (value, unit)}``. The refits hold them too, so an
-            effect found may stand in for one of them; the verdict then says so.
+            (`vfjax.first_fit_parameters`: S for a GAW in pixels, the closure duration t_c,
+            and the subglottal pressure P_s where the recording does not state it) but the
+            diagnosed fit held at its model's values, ``{name: (value, unit)}``. The refits
+            hold them too, so an effect found may stand in for one of them; the verdict then
+            says so.
     """
 
     result: FitResult
