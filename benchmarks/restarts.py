@@ -5,7 +5,7 @@ recordings (needs ../shared):
   fit's default box (P_s at the preset's value);
 - "default": `vfjax.fit_recording` (P_s searched, the first fit's box, its restarts, made
   again after 0.2 s where the fit at the default warm-up is not settled);
-- "best of N": N independent restarts (another key) in a box wider than the default's
+- "best of N": N independent restarts (another key, none culled) in a box wider than the default's
   (K and C_f ×/÷ 20 and 200, t_c from 0 to 6× its start, P_s 500-40 000 dyne/cm²), P_s free,
   after the default fit's warm-up.
 
@@ -69,6 +69,7 @@ def main():
             names,
             bounds=reference_box(model),
             restarts=args.restarts,
+            swarm=vfjax.Swarm(cull_at=0),  # every restart searched to its end
             key=jax.random.key(2026),
             warmup=default.sampling.warmup,
             progress=False,

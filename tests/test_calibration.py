@@ -806,10 +806,11 @@ def test_the_statistics_control_reaches_the_paper_models_best_on_wandering_null_
     """Twelve null recordings of a demo N1's fit (201 frames at 4 kHz, 3 px) whose timing
     wanders (a walk of the periods, 20 us a cycle): the statistic's control (a cubic
     stiffness the one candidate) ends within 5 % of a full fit of the paper's model on each
-    (`vfjax.fit`, four restarts), the independent best, so that no candidate is credited
-    with a fall that the paper's model itself can make. (A walk can move the paper model's
-    best into a basin that the steps from the null recording's truth do not reach; the
-    control's extra starts, `Calibration.control_starts`, are there for it.)"""
+    (`vfjax.fit`, four restarts searched to their ends), the independent best, so that no
+    candidate is credited with a fall that the paper's model itself can make. (A walk can
+    move the paper model's best into a basin that the steps from the null recording's truth
+    do not reach; the control's extra starts, `Calibration.control_starts`, are there for
+    it.)"""
     from vfjax._diagnosis import _statistic as C
     from vfjax._diagnosis._candidates import as_candidates
     from vfjax._fit._problem import prepare
@@ -832,6 +833,7 @@ def test_the_statistics_control_reaches_the_paper_models_best_on_wandering_null_
                 progress=False,
                 warmup=fit.sampling.warmup,
                 restarts=4,
+                swarm=vfjax.Swarm(cull_at=0),  # four whole searches
             ).nmse
             for row in nulls
         ]

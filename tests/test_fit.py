@@ -696,6 +696,35 @@ def test_restarts_keep_the_best_and_restart_zero_is_the_fit_alone():
         fit(_start(truth), rec, swarm=swarm, restarts=0)
 
 
+def test_restarts_behind_at_the_cull_stop_and_the_rest_search_on_unchanged():
+    """With ``Swarm.cull_at``, the restarts of a recording whose swarms lie behind after
+    that many iterations stop there: the best half (by the swarm's best NMSE then, as the
+    same swarms stopped there tell) search on and end exactly where they end without the
+    cull, the others are left unpolished (None), and the simulations they skip are not
+    counted."""
+    truth = vfjax.preset("N1")
+    rec = _recording(truth, t_start=0.0305, noise_px=1.0)
+    key = jax.random.key(5)
+    kw = dict(key=key, restarts=4, progress=False)
+    at_cut = fit(
+        _start(truth), rec, swarm=Swarm(size=8, iterations=4, cull_at=0), polish=None, **kw
+    )
+    whole = fit(_start(truth), rec, swarm=Swarm(size=8, iterations=12, chunk=4, cull_at=0), **kw)
+    culled = fit(_start(truth), rec, swarm=Swarm(size=8, iterations=12, chunk=4, cull_at=4), **kw)
+    kept = np.sort(np.argsort(at_cut.restart_nmse, kind="stable")[:2])
+    assert [i for i, v in enumerate(culled.restart_nmse) if v is not None] == kept.tolist()
+    for i in kept:
+        assert culled.restart_nmse[i] == pytest.approx(whole.restart_nmse[i], rel=1e-12)
+    assert culled.nmse == min(whole.restart_nmse[i] for i in kept)
+    assert culled.nmse == pytest.approx(float(vfjax.nmse(rec.area, culled.fitted_gaw())), rel=1e-9)
+    # two restarts skip 8 iterations of 8 particles each, and their polish
+    assert culled.n_simulations < whole.n_simulations - 2 * 8 * 8
+    assert Swarm(cull_at=20).culls(4) and not Swarm(cull_at=0).culls(4)
+    assert not Swarm(iterations=20, cull_at=20).culls(4) and not Swarm().culls(1)
+    with pytest.raises(ValueError, match="cull_at"):
+        Swarm(cull_at=-1)
+
+
 def test_a_first_fit_searches_the_pressure_and_the_hold_from_zero():
     """`fit_recording` fits P_s unless the sidecar states it, and searches t_c linearly from
     0 (no hold), so a fit that needs no hold is not at a bound. On a recording of N1 at

@@ -101,19 +101,24 @@ def _swarm_costs(batch, active, positions, width: int):
     """The swarm cost of every particle of every fit, (fits, n, d) -> (fits, n), and the
     rest of each particle's polish point (its profiled time shift and S), (fits, n, a).
 
-    The particles are laid out fit after fit and simulated ``width`` at a time (`lanes`;
-    one vmapped simulation, each particle with its own fit's problem) in a `lax.map` of at
-    least two chunks. A chunk of padding fits only (``active`` False) is skipped; a padding
-    particle's cost is inf. A particle's cost does not depend on the batch: its lane is in a
-    full SIMD vector of a vmap of the same code whatever the batch."""
+    The particles of the active fits are laid out first, fit after fit, then those of the
+    others (padding fits, restarts culled: ``active`` False), and simulated ``width`` at a
+    time (`lanes`; one vmapped simulation, each particle with its own fit's problem) in a
+    `lax.map` of at least two chunks. A chunk of inactive fits only is skipped; an inactive
+    particle's cost is inf. A particle's cost does not depend on the batch: its fit's block
+    starts at a multiple of ``n`` wherever it is, so (``n`` a multiple of `_LANE_ALIGN`, as
+    by default) its lane is in a full SIMD vector of a vmap of the same code whatever the
+    batch and whichever fits are active."""
     n_fits, n, d = positions.shape
     n_aux = batch.n_profiled
     share = n_fits * n
     chunks = max(2, -(-share // width))
     pad = chunks * width - share
-    x = jnp.pad(positions.reshape(share, d), ((0, pad), (0, 0))).reshape(chunks, width, d)
-    owner = jnp.pad(jnp.repeat(jnp.arange(n_fits), n), (0, pad)).reshape(chunks, width)
-    live = jnp.pad(jnp.repeat(active, n), (0, pad)).reshape(chunks, width)
+    # the active fits' particles first (a stable order: fit after fit, as laid out)
+    order = jnp.argsort(~jnp.repeat(active, n), stable=True)
+    x = jnp.pad(positions.reshape(share, d)[order], ((0, pad), (0, 0))).reshape(chunks, width, d)
+    owner = jnp.pad(jnp.repeat(jnp.arange(n_fits), n)[order], (0, pad)).reshape(chunks, width)
+    live = jnp.pad(jnp.repeat(active, n)[order], (0, pad)).reshape(chunks, width)
 
     def chunk(args):
         z, fit, on = args
@@ -127,10 +132,12 @@ def _swarm_costs(batch, active, positions, width: int):
         return jax.lax.cond(jnp.any(on), run, lambda: skip)
 
     out = jax.lax.map(chunk, (x, owner, live))
-    return jax.tree.map(
-        lambda a: a.reshape(chunks * width, *a.shape[2:])[:share].reshape(n_fits, n, *a.shape[2:]),
-        out,
-    )
+
+    def laid_out(a):  # back in the batch's order
+        flat = a.reshape(chunks * width, *a.shape[2:])[:share]
+        return jnp.zeros_like(flat).at[order].set(flat).reshape(n_fits, n, *a.shape[2:])
+
+    return jax.tree.map(laid_out, out)
 
 
 #: XLA's options for `_swarm_start`: LLVM's -O2 rather than XLA's default -O3. The program
@@ -353,6 +360,19 @@ def _polish_batch(batch, active, found, points, from_point, polish: Polish | Non
     return jax.lax.map(one, (batch, active, found, points, from_point))
 
 
+def _survivors(costs, owner, restarts: int) -> np.ndarray:
+    """Which fits of a padded batch search on after `Swarm.cull_at` iterations: of each
+    recording's ``restarts`` (``owner``: each real fit's recording), the best half, rounded
+    up, by their swarms' best NMSE (``costs``); ties and non-finite costs go by order.
+    Padding fits are never kept."""
+    n = len(owner)
+    keep = np.zeros(len(costs), bool)
+    rank = np.where(np.isfinite(costs[:n]), costs[:n], np.inf).reshape(-1, restarts)
+    best = np.argsort(rank, axis=1, kind="stable")[:, : -(-restarts // 2)]
+    keep[(best + restarts * np.arange(rank.shape[0])[:, None]).ravel()] = True
+    return keep
+
+
 def _check_contest(contest, n_recordings: int) -> None:
     """Refuse a ``contest`` that is not ``(groups, best)`` with a group per recording and a
     positive integer ``best`` (a float or a bool is refused, not truncated)."""
@@ -481,7 +501,9 @@ def fit_many(
         callback: called as ``callback(iteration, best_nmse)`` after each compiled chunk of
             swarm iterations and after the polish (best NMSE over the batch).
         restarts: independent searches (swarm and polish) per recording, all in the batch;
-            each recording keeps its best (`FitResult.restart_nmse` lists them all).
+            each recording keeps its best (`FitResult.restart_nmse` lists them all). After
+            ``swarm.cull_at`` iterations only the best half of a recording's restarts search
+            on and are polished (`Swarm`): the others cost no more simulations.
             Restart 0 of fit i uses the key ``fold_in(key, i)`` (or ``key[i]``), restart
             r > 0 ``fold_in`` of that key and r.
         min_batch: pad the batch to at least this many fits (skipped; they cost no
@@ -614,8 +636,21 @@ def fit_many(
     groups = list(zip(*(_split(a, devices) for a in (swarm_batch, active, lowers, uppers))))
     traces, times = [], []
     done = 0  # evaluations: the initial positions, then one per iteration
+    # restarts that lie behind after `Swarm.cull_at` iterations stop there (`_survivors`)
+    cut = swarm.cull_at + 1 if swarm.culls(restarts) else None
+    searched = active
+    evaluations = np.full(n_fits + pad, swarm.iterations + 1)
     while done < swarm.iterations + 1:
-        live = np.int32(min(swarm.chunk, swarm.iterations + 1 - done))
+        if done == cut:
+            states = _joined(states)
+            searched = active & _survivors(states.global_cost, owner, restarts)
+            evaluations[~searched] = cut
+            states = _split(states, devices)
+            groups = list(
+                zip(*(_split(a, devices) for a in (swarm_batch, searched, lowers, uppers)))
+            )
+        live = min(swarm.chunk, swarm.iterations + 1 - done)
+        live = np.int32(live if cut is None or done >= cut else min(live, cut - done))
         out = side_by_side(
             [
                 lambda g=g, st=st, live=live: _swarm_chunk(*g, st, live, program, width)
@@ -647,7 +682,11 @@ def fit_many(
     n_y = problems[0].point_size
     no_points = np.zeros((n_fits + pad, n_y), found[0].dtype)
     from_swarm = np.zeros(n_fits + pad, bool)
-    chosen = active if contest is None else active & _contenders(found[1], owner, *contest)
+    if contest is None:
+        chosen = searched
+    else:  # a culled restart's swarm stopped early: it contests nothing
+        ranked = np.where(searched, found[1], np.inf)
+        chosen = searched & _contenders(ranked, owner, *contest)
     if not windows:
         polished = polish_slices(batch, chosen, found, no_points, from_swarm, polish)
     else:
@@ -667,8 +706,8 @@ def fit_many(
     else:
         y, cost, steps = y0, c0, np.zeros(len(problems), int)
         names = ["not run"] * len(problems)
-    if contest is not None:  # the fits left out keep their swarm's best
-        out = ~chosen[: len(problems)]
+    if contest is not None:  # the fits left out keep their swarm's best; culled ones none
+        out = (~chosen & searched)[: len(problems)]
         point, swarm_cost = (np.asarray(a)[: len(problems)] for a in found)
         y = np.where(out[:, None], point, y[: len(problems)])
         cost = np.where(out, swarm_cost, cost[: len(problems)])
@@ -705,8 +744,9 @@ def fit_many(
         }
         status, of_mean = fit_status(rec.area, float(cost[j]), values, box, floors)
         units = fitted.parameter_units()
-        per_run = swarm.size * (1 + swarm.iterations) + 1
-        n_sims = sum(per_run + int(steps[r]) * (1 + y.shape[1]) for r in runs)
+        n_sims = sum(
+            swarm.size * int(evaluations[r]) + 1 + int(steps[r]) * (1 + y.shape[1]) for r in runs
+        )
         results.append(
             FitResult(
                 params={n: float(values[n]) for n in fitted_names},

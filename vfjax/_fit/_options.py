@@ -17,6 +17,11 @@ class Swarm(eqx.Module):
         social: pull towards the swarm's best, c2.
         max_speed: velocity clamp, as a fraction of each coordinate's range.
         boundary: "reflect" (mirror at the bound, velocity reversed) or "clip".
+        cull_at: for a fit with restarts (independent swarms of one recording): the
+            iteration after which the restarts that lie behind stop. From then on only the
+            best half of each recording's restarts (rounded up, by their swarms' best
+            NMSE) search on and are polished; the others end there, unpolished. 0, or at
+            least ``iterations``: every restart searches to the end and is polished.
     """
 
     size: int = eqx.field(default=48, converter=int)
@@ -27,12 +32,14 @@ class Swarm(eqx.Module):
     social: float = eqx.field(default=1.49618, converter=float)
     max_speed: float = eqx.field(default=0.25, converter=float)
     boundary: str = "reflect"
+    cull_at: int = eqx.field(default=20, converter=int)
 
     def __check_init__(self):
-        if self.size < 1 or self.iterations < 0 or self.chunk < 1:
+        if self.size < 1 or self.iterations < 0 or self.chunk < 1 or self.cull_at < 0:
             raise ValueError(
-                "Swarm: size and chunk must be >= 1 and iterations >= 0, got "
-                f"size={self.size}, iterations={self.iterations}, chunk={self.chunk}"
+                "Swarm: size and chunk must be >= 1, iterations and cull_at >= 0, got "
+                f"size={self.size}, iterations={self.iterations}, chunk={self.chunk}, "
+                f"cull_at={self.cull_at}"
             )
         if self.boundary not in ("reflect", "clip"):
             raise ValueError(f"Swarm: boundary must be 'reflect' or 'clip', got {self.boundary!r}")
@@ -42,7 +49,8 @@ class Swarm(eqx.Module):
         return {f: getattr(self, f) for f in self.__dataclass_fields__}
 
     def program(self) -> "Swarm":
-        """The settings that shape the compiled swarm (iterations run as data)."""
+        """The settings that shape the compiled swarm (iterations, and where restarts are
+        culled, run as data)."""
         return Swarm(
             self.size,
             0,
@@ -52,7 +60,12 @@ class Swarm(eqx.Module):
             self.social,
             self.max_speed,
             self.boundary,
+            0,
         )
+
+    def culls(self, restarts: int) -> bool:
+        """Whether a fit of ``restarts`` restarts culls them after `cull_at` iterations."""
+        return restarts > 1 and 0 < self.cull_at < self.iterations
 
 
 class Polish(eqx.Module):

@@ -58,7 +58,9 @@ class FitResult:
             model that explains nothing, which a fit must beat.
         restart_nmse: the NMSE each independent restart of the fit ended at (``restarts``
             of `vfjax.fit`); the fit is the best of them. Close values say the search is
-            reproducible; a spread says the landscape has several basins.
+            reproducible; a spread says the landscape has several basins. None for a
+            restart culled behind the others (`vfjax.Swarm`'s ``cull_at``) or that ended
+            with no finite error.
     """
 
     params: dict
