@@ -13,11 +13,13 @@ import equinox as eqx
 #: computed GAW, equal to its central differences within 1e-5).
 DEFAULT_SUBSTEPS = 4
 
-#: The longest RK4 step (s) of a default sampling: `DEFAULT_SUBSTEPS` steps a frame at 4 kHz,
-#: the frame rate at which that default was chosen. A slower camera gets more steps a frame
-#: (`default_substeps`): at 2 kHz, 4 steps a frame (125 us) simulate the N1 and N3 presets
-#: qualitatively wrong (no closed phase, a GAW at twice the frequency: NMSE 2.6 and 2.0
-#: against 64 steps a frame), where 8 (62.5 us) leave 4.9e-6 and 1.9e-7.
+#: The RK4 step (s) of a default sampling, at most: `DEFAULT_SUBSTEPS` steps a frame at 4 kHz,
+#: the frame rate at which that default was chosen. A camera of another rate gets as many
+#: steps a frame as keep the step within it (`default_substeps`): at 2 kHz, 4 steps a frame
+#: (125 us) simulate the N1 and N3 presets qualitatively wrong (no closed phase, a GAW at
+#: twice the frequency: NMSE 2.6 and 2.0 against 64 steps a frame), where 8 (62.5 us) leave
+#: 4.9e-6 and 1.9e-7; at 8 and 16 kHz, 2 steps and 1 a frame simulate the presets' +-80 %
+#: boxes as 4 do at 4 kHz (the step sets the error, not the frames it holds).
 MAX_DEFAULT_STEP = 1.0 / 16000.0
 
 #: The shortest length bucket (frames): recordings of up to this many frames share a program.
@@ -25,11 +27,12 @@ _MIN_BUCKET = 128
 
 
 def default_substeps(fps: float) -> int:
-    """RK4 steps per frame by default for a camera at ``fps`` (Hz): `DEFAULT_SUBSTEPS`, or as
-    many as keep the step within 1/16 000 s, that of the default at 4 kHz (8 at 2 kHz, 6 at
-    3 kHz). At 2 kHz, 4 steps a frame simulate the N1 and N3 presets without their closed
-    phase."""
-    return max(DEFAULT_SUBSTEPS, math.ceil(1.0 / (float(fps) * MAX_DEFAULT_STEP) - 1e-9))
+    """RK4 steps per frame by default for a camera at ``fps`` (Hz): the fewest that keep the
+    step within `MAX_DEFAULT_STEP` (1/16 000 s), the step of `DEFAULT_SUBSTEPS` at 4 kHz: 8
+    at 2 kHz, 6 at 3 kHz, 4 at 4 and 5 kHz, 3 at 6 kHz, 2 at 8-10 kHz, 1 from 16 kHz. At 2
+    kHz, 4 steps a frame simulate the N1 and N3 presets without their closed phase; at 8 kHz
+    4 steps a frame would cost twice the simulation of 2 for no accuracy the fit needs."""
+    return max(1, math.ceil(1.0 / (float(fps) * MAX_DEFAULT_STEP) - 1e-9))
 
 
 def length_bucket(n_frames: int) -> int:

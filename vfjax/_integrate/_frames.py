@@ -23,7 +23,7 @@ LOOKBACK = 0.002
 #: Event budget of a fit's simulation, per frame of its window.
 _EVENTS_PER_FRAME = 2
 #: A fit's dense output has rows for at least this many RK4 steps a frame (more round up to
-#: a power of two), so that every camera of 2 kHz or faster (`default_substeps` 8 to 4)
+#: a power of two), so that every camera of 2 kHz or faster (`default_substeps` 8 to 1)
 #: shares one program per length bucket. Rows beyond those a simulation reaches cost no
 #: iterations (the loop stops when done): the compiled fits of 4 kHz recordings run as fast
 #: with rows for 8 steps a frame as with rows for 4 (`benchmarks/engine.py`, part c).

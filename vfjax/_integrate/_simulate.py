@@ -102,8 +102,8 @@ def simulate(
             and ``max_time_shift`` are not given.
         n_frames: number of frames, an integer (a NumPy integer is accepted; 201.0 is not).
         substeps: RK4 steps per frame (the step is 1 / (substeps * fps)); default
-            `default_substeps` of ``fps`` (4, more below 4 kHz: the step stays within
-            1/16 000 s).
+            `default_substeps` of ``fps`` (4 at 4 kHz; the step stays within 1/16 000 s at
+            any frame rate: more steps a frame below 4 kHz, fewer above).
         t_start: start of sampling (s), e.g. to skip the onset transient; default 0.
         time_shift: extra, differentiable delay of the sampling (s), in [-t_start,
             max_time_shift] (the frames must lie in the integrated interval).
