@@ -590,6 +590,31 @@ def test_a_long_recording_is_fitted_by_continuation_in_its_length(continued):
     assert both[0].params["K"] == pytest.approx(float(vfjax.preset("N3").params()["K"]), rel=0.05)
 
 
+@_WITH_CONTINUED
+def test_a_contests_unpolished_fits_of_a_long_recording_report_its_whole_error(continued):
+    """Swarms of a recording fitted by continuation search its first 16 cycles; those a
+    contest leaves unpolished report their point's NMSE on the whole recording (as its
+    fitted GAW, simulated afresh, gives), not their first window's, which can be far lower
+    and would win a ranking of the group's fits."""
+    from vfjax._fit._engine import fit_many
+
+    long, _, both, _, _ = continued
+    starts = [both[0].model.set(K=both[0].params["K"] * f) for f in (0.8, 0.9, 1.1, 1.25)]
+    fits = fit_many(
+        starts,
+        [long] * 4,
+        ("S", "K", "C_f"),
+        swarm=Swarm(size=16, iterations=6),
+        contest=([0, 0, 0, 0], 1),
+        progress=False,
+    )
+    unpolished = [f for f in fits if f.optimistix_result == "not run"]
+    assert len(unpolished) == 3
+    for f in fits:
+        whole = float(vfjax.nmse(long.area, f.fitted_gaw(long)))
+        assert f.nmse == pytest.approx(whole, rel=1e-9), (f.optimistix_result, f.nmse, whole)
+
+
 @pytest.mark.slow  # a fit's independence of its batch is checked by default in a short batch
 @_WITH_CONTINUED
 def test_each_fit_of_a_continued_batch_equals_its_fit_alone(continued):

@@ -511,8 +511,10 @@ def fit_many(
         contest: ``(groups, best)``: a group number per recording, the fits of a group
             being alternatives to one another (a diagnosis's refit from several starts), and
             how many of each group are polished, those whose swarms ended lowest; the others
-            keep their swarm's best point and NMSE (``optimistix_result`` "not run"). A fit's
-            result still depends on its own group alone. None: every fit is polished.
+            keep their swarm's best point and its NMSE (``optimistix_result`` "not run"; for
+            a recording fitted by continuation, whose swarm searched its first window, the
+            point's NMSE on the whole recording). A fit's result still depends on its own
+            group alone. None: every fit is polished.
 
     Returns:
         One `FitResult` per recording (timings are those of the whole batch).
@@ -708,6 +710,8 @@ def fit_many(
         names = ["not run"] * len(problems)
     if contest is not None:  # the fits left out keep their swarm's best; culled ones none
         out = (~chosen & searched)[: len(problems)]
+        if windows and out.any():  # a swarm's cost is its first window's: the whole one's
+            found = polish_slices(batch, ~chosen & searched, found, found[0], searched, None)
         point, swarm_cost = (np.asarray(a)[: len(problems)] for a in found)
         y = np.where(out[:, None], point, y[: len(problems)])
         cost = np.where(out, swarm_cost, cost[: len(problems)])
