@@ -721,33 +721,39 @@ def test_restarts_keep_the_best_and_restart_zero_is_the_fit_alone():
         fit(_start(truth), rec, swarm=swarm, restarts=0)
 
 
-def test_restarts_behind_at_the_cull_stop_and_the_rest_search_on_unchanged():
-    """With ``Swarm.cull_at``, the restarts of a recording whose swarms lie behind after
-    that many iterations stop there: the best half (by the swarm's best NMSE then, as the
-    same swarms stopped there tell) search on and end exactly where they end without the
-    cull, the others are left unpolished (None), and the simulations they skip are not
-    counted."""
+def test_restarts_lost_at_the_cull_stop_and_the_rest_search_on_unchanged():
+    """With ``Swarm.cull_at``, a recording's restarts whose swarms lie more than
+    ``cull_factor`` times behind its best after that many iterations (as the same swarms
+    stopped there tell) stop there, unpolished (None); the others search on and end exactly
+    where they end without the cull; the simulations skipped are not counted."""
+    from vfjax._fit._engine import _survivors
+
     truth = vfjax.preset("N1")
     rec = _recording(truth, t_start=0.0305, noise_px=1.0)
-    key = jax.random.key(5)
-    kw = dict(key=key, restarts=4, progress=False)
-    at_cut = fit(
-        _start(truth), rec, swarm=Swarm(size=8, iterations=4, cull_at=0), polish=None, **kw
-    )
-    whole = fit(_start(truth), rec, swarm=Swarm(size=8, iterations=12, chunk=4, cull_at=0), **kw)
-    culled = fit(_start(truth), rec, swarm=Swarm(size=8, iterations=12, chunk=4, cull_at=4), **kw)
-    kept = np.sort(np.argsort(at_cut.restart_nmse, kind="stable")[:2])
-    assert [i for i, v in enumerate(culled.restart_nmse) if v is not None] == kept.tolist()
+    kw = dict(key=jax.random.key(5), restarts=4, progress=False)
+    swarm = Swarm(size=8, iterations=12, chunk=4, cull_at=4, cull_factor=1.0)
+    at_cut = fit(_start(truth), rec, swarm=Swarm(size=8, iterations=4), polish=None, **kw)
+    whole = fit(_start(truth), rec, swarm=Swarm(size=8, iterations=12, chunk=4), **kw)
+    culled = fit(_start(truth), rec, swarm=swarm, **kw)
+    kept = [i for i, v in enumerate(at_cut.restart_nmse) if v == min(at_cut.restart_nmse)]
+    assert [i for i, v in enumerate(culled.restart_nmse) if v is not None] == kept
+    assert len(kept) < 4
     for i in kept:
         assert culled.restart_nmse[i] == pytest.approx(whole.restart_nmse[i], rel=1e-12)
     assert culled.nmse == min(whole.restart_nmse[i] for i in kept)
     assert culled.nmse == pytest.approx(float(vfjax.nmse(rec.area, culled.fitted_gaw())), rel=1e-9)
-    # two restarts skip 8 iterations of 8 particles each, and their polish
-    assert culled.n_simulations < whole.n_simulations - 2 * 8 * 8
-    assert Swarm(cull_at=20).culls(4) and not Swarm(cull_at=0).culls(4)
+    # each restart culled skips 8 iterations of 8 particles, and its polish
+    assert culled.n_simulations < whole.n_simulations - (4 - len(kept)) * 8 * 8
+    # the rule: within the factor of the recording's best; all where none is finite
+    costs = np.array([1e-3, 5e-3, 2e-2, np.inf, np.inf, np.inf, np.nan, np.inf, 0.0, 0.0])
+    owner = np.repeat(np.arange(2), 4)
+    keep = _survivors(costs, owner, 4, 10.0)
+    assert keep.tolist() == [True, True, False, False, True, True, True, True, False, False]
+    assert Swarm().culls(4) and not Swarm(cull_at=0).culls(4)
     assert not Swarm(iterations=20, cull_at=20).culls(4) and not Swarm().culls(1)
-    with pytest.raises(ValueError, match="cull_at"):
-        Swarm(cull_at=-1)
+    for bad in ({"cull_at": -1}, {"cull_factor": 0.5}, {"cull_factor": float("nan")}):
+        with pytest.raises(ValueError, match="cull"):
+            Swarm(**bad)
 
 
 def test_a_first_fit_searches_the_pressure_and_the_hold_from_zero():

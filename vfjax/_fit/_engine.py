@@ -360,16 +360,16 @@ def _polish_batch(batch, active, found, points, from_point, polish: Polish | Non
     return jax.lax.map(one, (batch, active, found, points, from_point))
 
 
-def _survivors(costs, owner, restarts: int) -> np.ndarray:
+def _survivors(costs, owner, restarts: int, factor: float) -> np.ndarray:
     """Which fits of a padded batch search on after `Swarm.cull_at` iterations: of each
-    recording's ``restarts`` (``owner``: each real fit's recording), the best half, rounded
-    up, by their swarms' best NMSE (``costs``); ties and non-finite costs go by order.
-    Padding fits are never kept."""
+    recording's ``restarts`` (``owner``: each real fit's recording), those whose swarm's
+    best NMSE (``costs``) is within ``factor`` times the best of them (all of them where
+    none is finite). Padding fits are never kept."""
     n = len(owner)
     keep = np.zeros(len(costs), bool)
     rank = np.where(np.isfinite(costs[:n]), costs[:n], np.inf).reshape(-1, restarts)
-    best = np.argsort(rank, axis=1, kind="stable")[:, : -(-restarts // 2)]
-    keep[(best + restarts * np.arange(rank.shape[0])[:, None]).ravel()] = True
+    best = rank.min(axis=1, keepdims=True)
+    keep[:n] = ((rank <= factor * best) | ~np.isfinite(best)).ravel()
     return keep
 
 
@@ -502,8 +502,9 @@ def fit_many(
             swarm iterations and after the polish (best NMSE over the batch).
         restarts: independent searches (swarm and polish) per recording, all in the batch;
             each recording keeps its best (`FitResult.restart_nmse` lists them all). After
-            ``swarm.cull_at`` iterations only the best half of a recording's restarts search
-            on and are polished (`Swarm`): the others cost no more simulations.
+            ``swarm.cull_at`` iterations a restart whose swarm lies more than
+            ``swarm.cull_factor`` times behind the recording's best stops, unpolished, and
+            costs no more simulations (`Swarm`).
             Restart 0 of fit i uses the key ``fold_in(key, i)`` (or ``key[i]``), restart
             r > 0 ``fold_in`` of that key and r.
         min_batch: pad the batch to at least this many fits (skipped; they cost no
@@ -638,14 +639,14 @@ def fit_many(
     groups = list(zip(*(_split(a, devices) for a in (swarm_batch, active, lowers, uppers))))
     traces, times = [], []
     done = 0  # evaluations: the initial positions, then one per iteration
-    # restarts that lie behind after `Swarm.cull_at` iterations stop there (`_survivors`)
+    # restarts lost in another regime after `Swarm.cull_at` iterations stop (`_survivors`)
     cut = swarm.cull_at + 1 if swarm.culls(restarts) else None
     searched = active
     evaluations = np.full(n_fits + pad, swarm.iterations + 1)
     while done < swarm.iterations + 1:
         if done == cut:
             states = _joined(states)
-            searched = active & _survivors(states.global_cost, owner, restarts)
+            searched = active & _survivors(states.global_cost, owner, restarts, swarm.cull_factor)
             evaluations[~searched] = cut
             states = _split(states, devices)
             groups = list(

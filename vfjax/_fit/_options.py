@@ -18,10 +18,12 @@ class Swarm(eqx.Module):
         max_speed: velocity clamp, as a fraction of each coordinate's range.
         boundary: "reflect" (mirror at the bound, velocity reversed) or "clip".
         cull_at: for a fit with restarts (independent swarms of one recording): the
-            iteration after which the restarts that lie behind stop. From then on only the
-            best half of each recording's restarts (rounded up, by their swarms' best
-            NMSE) search on and are polished; the others end there, unpolished. 0, or at
-            least ``iterations``: every restart searches to the end and is polished.
+            iteration after which the restarts lost in another regime stop, those whose
+            swarm's best NMSE then exceeds ``cull_factor`` times the best of the
+            recording's restarts; they end there, unpolished, and the others search on. 0,
+            or at least ``iterations``: every restart searches to the end and is polished.
+        cull_factor: how far behind the recording's best restart (a factor of NMSE) a
+            restart is culled after ``cull_at`` iterations.
     """
 
     size: int = eqx.field(default=48, converter=int)
@@ -33,6 +35,7 @@ class Swarm(eqx.Module):
     max_speed: float = eqx.field(default=0.25, converter=float)
     boundary: str = "reflect"
     cull_at: int = eqx.field(default=20, converter=int)
+    cull_factor: float = eqx.field(default=10.0, converter=float)
 
     def __check_init__(self):
         if self.size < 1 or self.iterations < 0 or self.chunk < 1 or self.cull_at < 0:
@@ -41,6 +44,8 @@ class Swarm(eqx.Module):
                 f"size={self.size}, iterations={self.iterations}, chunk={self.chunk}, "
                 f"cull_at={self.cull_at}"
             )
+        if not self.cull_factor >= 1.0:  # NaN refused too
+            raise ValueError(f"Swarm: cull_factor must be >= 1, got {self.cull_factor}")
         if self.boundary not in ("reflect", "clip"):
             raise ValueError(f"Swarm: boundary must be 'reflect' or 'clip', got {self.boundary!r}")
 
@@ -61,6 +66,7 @@ class Swarm(eqx.Module):
             self.max_speed,
             self.boundary,
             0,
+            1.0,
         )
 
     def culls(self, restarts: int) -> bool:
