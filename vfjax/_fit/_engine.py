@@ -367,9 +367,9 @@ def _survivors(costs, owner, restarts: int, factor: float) -> np.ndarray:
     none is finite). Padding fits are never kept."""
     n = len(owner)
     keep = np.zeros(len(costs), bool)
-    rank = np.where(np.isfinite(costs[:n]), costs[:n], np.inf).reshape(-1, restarts)
-    best = rank.min(axis=1, keepdims=True)
-    keep[:n] = ((rank <= factor * best) | ~np.isfinite(best)).ravel()
+    cost = np.where(np.isfinite(costs[:n]), costs[:n], np.inf).reshape(-1, restarts)
+    best = cost.min(axis=1, keepdims=True)
+    keep[:n] = ((cost <= factor * best) | ~np.isfinite(best)).ravel()
     return keep
 
 
@@ -644,14 +644,13 @@ def fit_many(
     searched = active
     evaluations = np.full(n_fits + pad, swarm.iterations + 1)
     while done < swarm.iterations + 1:
-        if done == cut:
-            states = _joined(states)
-            searched = active & _survivors(states.global_cost, owner, restarts, swarm.cull_factor)
+        if done == cut:  # the groups' best costs, in the batch's order (`_split`'s parts)
+            costs = np.concatenate([_host(st.global_cost) for st in states])
+            searched = active & _survivors(costs, owner, restarts, swarm.cull_factor)
             evaluations[~searched] = cut
-            states = _split(states, devices)
-            groups = list(
-                zip(*(_split(a, devices) for a in (swarm_batch, searched, lowers, uppers)))
-            )
+            groups = [
+                (b, on, lo, hi) for (b, _, lo, hi), on in zip(groups, _split(searched, devices))
+            ]
         live = min(swarm.chunk, swarm.iterations + 1 - done)
         live = np.int32(live if cut is None or done >= cut else min(live, cut - done))
         out = side_by_side(
@@ -710,9 +709,10 @@ def fit_many(
         y, cost, steps = y0, c0, np.zeros(len(problems), int)
         names = ["not run"] * len(problems)
     if contest is not None:  # the fits left out keep their swarm's best; culled ones none
-        out = (~chosen & searched)[: len(problems)]
+        left_out = ~chosen & searched
+        out = left_out[: len(problems)]
         if windows and out.any():  # a swarm's cost is its first window's: the whole one's
-            found = polish_slices(batch, ~chosen & searched, found, found[0], searched, None)
+            found = polish_slices(batch, left_out, found, found[0], searched, None)
         point, swarm_cost = (np.asarray(a)[: len(problems)] for a in found)
         y = np.where(out[:, None], point, y[: len(problems)])
         cost = np.where(out, swarm_cost, cost[: len(problems)])
