@@ -243,11 +243,14 @@ def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(
     assert code in (0, 1) and "Traceback" not in err, err
     saved = json.loads((tmp_path / "w" / "FN003_fit.json").read_text())
     assert saved["sampling"]["warmup"] == 0.05
-    # 120 frames: the contour file's length bucket, so its compiled programs serve again
-    rows = [f"{i},{i / FPS:.8f},{a * 1e10 + 1:g}" for i, a in enumerate(_gaw(120))]
+    # 120 frames: the contour file's length bucket, so its compiled programs serve again;
+    # the glottis stops after its third cycle (frame 60), which is warned of before the fit
+    gaw = np.where(np.arange(120) < 60, _gaw(120), 0.0)
+    rows = [f"{i},{i / FPS:.8f},{a * 1e10 + 1:g}" for i, a in enumerate(gaw)]
     code, err = _main("fit", _table(tmp_path, rows=rows), *quick, **here)
     assert code == 1, err
     assert "Traceback" not in err
+    assert "warning: rec has no glottal cycle in 15.2-29.8 ms" in err, err
     assert "the fit failed: NMSE" in err and "no better than the recording's mean" in err
     saved = json.loads((tmp_path / "vfjax_output" / "rec_fit.json").read_text())
     assert saved["status"] == "worse_than_mean"

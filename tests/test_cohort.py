@@ -202,6 +202,16 @@ def test_a_folder_holds_only_its_recordings(shared_dir, tmp_path):
     assert row["ASI"] == pytest.approx(0.5) and row["PAI"] == 0.0
     contour = _measured_columns(loaded[2])  # from the contour file's edges
     assert 0.0 < contour["ASI"] <= 1.0 and 0.0 <= contour["PAI"] < 0.5
+    # a glottis that stops vibrating: the stretch without cycles in its own column
+    assert "phonation breaks" not in _measured_columns(loaded[1])
+    n = loaded[1].n_frames
+    stopped = dataclasses.replace(
+        loaded[1], area=np.where(np.arange(n) < n // 2, loaded[1].area, 0)
+    )
+    (begin, end), *_ = vfjax.descriptors.phonation_breaks(stopped.area, stopped.fps)
+    text = f"{begin * 1e3:.1f}-{end * 1e3:.1f} ms"
+    assert _measured_columns(stopped)["phonation breaks"] == text
+    assert begin > 0.0 and end == pytest.approx((n - 1) / stopped.fps)  # to its last frame
     with pytest.raises(ValueError, match="disagrees with the sidecar"):
         load_entry(dataclasses.replace(entries[0], fps=8000.0))
     # a header in quotes, as a spreadsheet writes it: the scan reads it as the loader does

@@ -88,3 +88,42 @@ def test_a_cycle_without_closing_time_has_no_speed_quotient():
     assert any(c.closing == c.peak for c in cycles)
     sq = [(c.peak - c.opening) / (c.closing - c.peak) for c in cycles if c.closing > c.peak]
     assert describe(a, 4000.0).speed_quotient == pytest.approx(np.mean(sq), rel=1e-12)
+
+
+def test_phonation_breaks_are_the_stretches_without_cycles(shared_dir):
+    """`phonation_breaks`: none on a vibrating glottis (a demo recording, the shared real
+    contours and synthetic recordings: sustained phonation); where the glottis stops for a
+    while (frames set to zero at the start, in the middle, at the end) the stretch from the
+    end of the last cycle before it to the next cycle start, to within a cycle; one missing
+    cycle is no break."""
+    import vfjax
+    from vfjax.descriptors import breaks_words, cycle_starts, phonation_breaks
+    from vfjax.recording import load_contours
+
+    rec = vfjax.datasets.demo_recording("N1", seed=1, n_frames=401)  # 4 kHz, 125 Hz
+    a, fps = rec.area, rec.fps
+    assert phonation_breaks(a, fps) == [] and breaks_words([]) == ""
+    starts = cycle_starts(a, fps, 0.25)
+    period = float(np.median(np.diff(starts)))
+    assert period == pytest.approx(0.008, rel=0.05)
+    for lo, hi in ((0, 150), (100, 250), (200, 401)):
+        stopped = np.where((np.arange(a.size) >= lo) & (np.arange(a.size) < hi), 0.0, a)
+        (begin, end), *more = phonation_breaks(stopped, fps)
+        assert more == []
+        # the stretch holds the zeroed frames but for the last cycle's tail, within a cycle
+        assert lo / fps - 1e-9 <= begin + period and begin <= lo / fps + period
+        assert (hi - 1) / fps <= end <= hi / fps + period
+    words = breaks_words(phonation_breaks(np.where(np.arange(a.size) >= 200, 0.0, a), fps), "r")
+    assert words.startswith("r has no glottal cycle in ") and "ms (a phonation break" in words
+    # one cycle gone: two cycle lengths between starts, under `BREAK_CYCLES`
+    k = int(round(starts[3] * fps)) - 2
+    one = a.copy()
+    one[k : k + int(round(period * fps))] = 0.0
+    assert phonation_breaks(one, fps) == []
+    real = {"MN003_adapt": 8000.0, "FD003_pre": 8000.0, "FN003": 8000.0, "FP005_naso": 4000.0}
+    for name, rate in real.items():
+        r = load_contours(shared_dir / "data" / "real" / f"{name}_segdata.txt", rate)
+        assert phonation_breaks(r.area, r.fps) == [], name
+    for name in ("syn_base", "syn_gap", "syn_tremor"):
+        r = vfjax.load_recording(shared_dir / "data" / "synthetic" / f"{name}.csv")
+        assert phonation_breaks(r.area, r.fps) == [], name

@@ -282,6 +282,10 @@ def test_shared_gap_case(shared_dir, capsys):
     assert removed > 0.9 and outcome.evidence == {"GlottalGap": refit.p_value}
     assert "GlottalGap (calibrated p = " in outcome.words
     assert "P_s" not in outcome.words  # the fit's pressure lies within PRESSURE_RANGE
+    assert "no glottal cycle" not in outcome.words  # (syn_gap vibrates throughout)
+    # a recording whose glottis stops (its last 80 frames closed) is named so in the words
+    stopped = dataclasses.replace(rec, area=np.where(np.arange(rec.n_frames) < 121, rec.area, 0))
+    assert "has no glottal cycle in " in added.outcome(stopped).words
     # a final fit whose pressure reached the edge of the plausible range is named
     strained = dataclasses.replace(refit.result, params={**refit.result.params, "P_s": 3e4})
     words = Investigation(rec.name, [Round(result, d, "GlottalGap", strained)]).outcome(rec).words

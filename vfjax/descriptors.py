@@ -64,6 +64,68 @@ def cycle_starts(area, fps: float, level: float = 0.5) -> np.ndarray:
     return (i + frac) / fps
 
 
+#: A stretch of a GAW without a glottal cycle longer than this many cycle lengths is a
+#: phonation break (`phonation_breaks`): one missed cycle is not (a weak cycle below the
+#: detection level, a segmentation glitch of a frame or two), two or more are.
+BREAK_CYCLES = 2.5
+
+
+def phonation_breaks(
+    area: np.ndarray, fps: float, level: float = 0.25
+) -> list[tuple[float, float]]:
+    """The stretches of a GAW in which no glottal cycle starts: phonation stopped (voice
+    onset or offset within the recording, a break) or the glottis lost by the segmentation
+    (hidden by the epiglottis, out of focus). A model of sustained phonation does not follow
+    them, and a fit across one describes neither part.
+
+    A stretch is found where the time between consecutive cycle starts (`cycle_starts` at
+    ``level``), or from the first frame to the first start, or from the last start to the
+    last frame, exceeds `BREAK_CYCLES` times the cycle length (the median time between
+    consecutive starts, which a break does not move).
+
+    Arguments:
+        area: glottal area waveform, one value per frame (any unit).
+        fps: frame rate (Hz).
+        level: the cycle starts' crossing level, a fraction of the waveform's range (low, so
+            that cycles of small amplitude count).
+
+    Returns:
+        ``(start, end)`` of each stretch (s from the first frame: from a cycle length after
+        the last cycle start before it, or the first frame, to the next cycle start, or the
+        last frame), in order; empty where the glottis vibrates throughout or fewer than two
+        cycles start (no cycle length).
+    """
+    area = _as_waveform(area, fps)
+    starts = cycle_starts(area, fps, level)
+    if len(starts) < 2:
+        return []
+    period = float(np.median(np.diff(starts)))
+    edges = np.concatenate([[0.0], starts, [(area.size - 1) / fps]])
+    long = np.flatnonzero(np.diff(edges) > BREAK_CYCLES * period)
+    # each stretch from the end of the cycle before it (a cycle length after its start)
+    return [(float(edges[k] + (period if k else 0.0)), float(edges[k + 1])) for k in long]
+
+
+def breaks_words(breaks: list[tuple[float, float]], name: str = "the recording") -> str:
+    """`phonation_breaks` in a sentence, with what to do about them.
+
+    Arguments:
+        breaks: the stretches (`phonation_breaks`: start and end, s).
+        name: what the sentence calls the recording.
+
+    Returns:
+        The sentence; "" where there is no stretch.
+    """
+    if not breaks:
+        return ""
+    spans = ", ".join(f"{a * 1e3:.1f}-{b * 1e3:.1f} ms" for a, b in breaks)
+    return (
+        f"{name} has no glottal cycle in {spans} (a phonation break, or the glottis lost by "
+        "the segmentation): a model of sustained phonation does not follow it, so fit the "
+        "frames of phonation alone"
+    )
+
+
 def periodicity(area, fps: float, f0_range=(50.0, 1000.0)) -> tuple[float, float]:
     """How periodic a waveform is: the largest normalised autocorrelation over the lags of a
     glottal period (``f0_range``, Hz), and that lag (s).

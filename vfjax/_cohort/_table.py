@@ -62,7 +62,15 @@ def table(rows: list[dict], groups: list[str]):
     tail = [c for c in TRAILING_COLUMNS if c in present]
     middle = [c for c in present if c not in head and c not in tail]
     frame = frame.reindex(columns=head + middle + tail)
-    text = ("reason", "settled", "outcome", "effects needed", "effects unconfirmed", "conclusion")
+    text = (
+        "reason",
+        "phonation breaks",
+        "settled",
+        "outcome",
+        "effects needed",
+        "effects unconfirmed",
+        "conclusion",
+    )
     for column in (*text, *groups):
         if column in frame:
             frame[column] = frame[column].fillna("").astype(str)

@@ -95,7 +95,7 @@ def _measured_columns(rec: Recording) -> dict:
     folds can be told apart (per-fold areas, contour edges or video masks split by the
     glottal midline), the asymmetry indices ASI and PAI (`vfjax.asymmetry`)."""
     from ..asymmetry import asymmetry_indices, fold_areas
-    from ..descriptors import describe
+    from ..descriptors import describe, phonation_breaks
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -103,6 +103,9 @@ def _measured_columns(rec: Recording) -> dict:
     row = {"fps [Hz]": rec.fps, "frames": rec.n_frames, "unit": rec.unit}
     for column, field in DESCRIPTOR_COLUMNS:
         row[column] = float(getattr(d, field))
+    breaks = phonation_breaks(rec.area, rec.fps)
+    if breaks:  # stretches without glottal cycles, which no fit follows
+        row["phonation breaks"] = ", ".join(f"{a * 1e3:.1f}-{b * 1e3:.1f} ms" for a, b in breaks)
     try:
         indices = asymmetry_indices(*fold_areas(rec), rec.fps)
     except ValueError:  # a GAW alone, or a glottis that never spans two rows: no midline
