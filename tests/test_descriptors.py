@@ -127,3 +127,25 @@ def test_phonation_breaks_are_the_stretches_without_cycles(shared_dir):
     for name in ("syn_base", "syn_gap", "syn_tremor"):
         r = vfjax.load_recording(shared_dir / "data" / "synthetic" / f"{name}.csv")
         assert phonation_breaks(r.area, r.fps) == [], name
+
+
+def test_an_f0_outside_phonation_is_named_as_a_frame_rate_to_check(shared_dir):
+    """`f0_words`: the demo recording (N1, 125 Hz at 4 kHz) and the shared real contours at
+    their cameras' rates lie within `PHONATION_F0_HZ`; the demo given 1 500 or 40 000 fps has
+    an f0 of 47 or 1 250 Hz, which is named with the rate to check."""
+    import vfjax
+    from vfjax.descriptors import PHONATION_F0_HZ, f0_words, fundamental_frequency
+    from vfjax.recording import load_contours
+
+    rec = vfjax.datasets.demo_recording("N1", seed=1, n_frames=201)
+    assert f0_words(rec.area, rec.fps) == ""
+    for fps in (1500.0, 40000.0):
+        f0 = fundamental_frequency(rec.area, fps)
+        assert f0 == pytest.approx(fundamental_frequency(rec.area, rec.fps) * fps / rec.fps)
+        assert not PHONATION_F0_HZ[0] <= f0 <= PHONATION_F0_HZ[1]
+        words = f0_words(rec.area, fps, "r")
+        assert words.startswith(f"r has an f0 of {f0:.0f} Hz at the {fps:g} fps it was given")
+    real = {"MN003_adapt": 8000.0, "FD003_pre": 8000.0, "FN003": 8000.0, "FP005_naso": 4000.0}
+    for name, rate in real.items():
+        r = load_contours(shared_dir / "data" / "real" / f"{name}_segdata.txt", rate)
+        assert f0_words(r.area, r.fps) == "", name

@@ -259,14 +259,18 @@ def diagnosis_candidates(also) -> list | None:
     return list(DEFAULT_CANDIDATES) + [getattr(vfjax, name) for name in dict.fromkeys(also)]
 
 
-def _warn_of_breaks(rec) -> None:
-    """A warning on stderr where the recording has stretches without glottal cycles
-    (`vfjax.descriptors.phonation_breaks`)."""
-    from .descriptors import breaks_words, phonation_breaks
+def _warn_of_recording(rec) -> None:
+    """Warnings on stderr where the recording has stretches without glottal cycles
+    (`vfjax.descriptors.phonation_breaks`) or an f0 outside phonation's
+    (`vfjax.descriptors.f0_words`)."""
+    from .descriptors import breaks_words, f0_words, phonation_breaks
 
-    words = breaks_words(phonation_breaks(rec.area, rec.fps), rec.name)
-    if words:
-        print(f"vfjax: warning: {words}", file=sys.stderr)
+    for words in (
+        breaks_words(phonation_breaks(rec.area, rec.fps), rec.name),
+        f0_words(rec.area, rec.fps, rec.name),
+    ):
+        if words:
+            print(f"vfjax: warning: {words}", file=sys.stderr)
 
 
 def cmd_diagnose(args) -> int:
@@ -281,7 +285,7 @@ def cmd_diagnose(args) -> int:
 
     check_output_folder(args.out, args.force)
     rec = _load_input(args)
-    _warn_of_breaks(rec)
+    _warn_of_recording(rec)
     model = initial_model(rec, template=args.start)
     with staged_output(args.out, args.force) as out:
         study = investigate(
@@ -353,7 +357,7 @@ def cmd_fit(args) -> int:
 
     check_output_folder(args.out, args.force)
     rec = _load_input(args)
-    _warn_of_breaks(rec)
+    _warn_of_recording(rec)
     model = initial_model(rec, template=args.start)
     with staged_output(args.out, args.force) as out:
         params = None if args.params is None else tuple(args.params)

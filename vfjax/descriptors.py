@@ -64,6 +64,11 @@ def cycle_starts(area, fps: float, level: float = 0.5) -> np.ndarray:
     return (i + frac) / fps
 
 
+#: The fundamental frequencies of phonation (Hz): from the lowest vocal fry of a male voice to
+#: the top of a soprano's modal register. A recording whose f0 lies outside was most likely
+#: given the wrong frame rate (`f0_words`).
+PHONATION_F0_HZ = (50.0, 1000.0)
+
 #: A stretch of a GAW without a glottal cycle longer than this many cycle lengths is a
 #: phonation break (`phonation_breaks`): one missed cycle is not (a weak cycle below the
 #: detection level, a segmentation glitch of a frame or two), two or more are.
@@ -106,6 +111,29 @@ def phonation_breaks(
     return [(float(edges[k] + (period if k else 0.0)), float(edges[k + 1])) for k in long]
 
 
+def f0_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
+    """A caution where the GAW's f0 (`fundamental_frequency`) lies outside
+    `PHONATION_F0_HZ`: the frame rate it was given is most likely not the camera's.
+
+    Arguments:
+        area: glottal area waveform, one value per frame (any unit).
+        fps: the frame rate it was given (Hz).
+        name: what the sentence calls the recording.
+
+    Returns:
+        The sentence; "" where f0 lies within the range or no f0 is found.
+    """
+    f0 = fundamental_frequency(area, fps)
+    low, high = PHONATION_F0_HZ
+    if not math.isfinite(f0) or low <= f0 <= high:
+        return ""
+    return (
+        f"{name} has an f0 of {f0:.0f} Hz at the {fps:g} fps it was given, outside the "
+        f"{low:.0f}-{high:.0f} Hz of phonation: check the camera's frame rate (a fit "
+        "describes a glottis at that f0)"
+    )
+
+
 def breaks_words(breaks: list[tuple[float, float]], name: str = "the recording") -> str:
     """`phonation_breaks` in a sentence, with what to do about them.
 
@@ -126,7 +154,7 @@ def breaks_words(breaks: list[tuple[float, float]], name: str = "the recording")
     )
 
 
-def periodicity(area, fps: float, f0_range=(50.0, 1000.0)) -> tuple[float, float]:
+def periodicity(area, fps: float, f0_range=PHONATION_F0_HZ) -> tuple[float, float]:
     """How periodic a waveform is: the largest normalised autocorrelation over the lags of a
     glottal period (``f0_range``, Hz), and that lag (s).
 
