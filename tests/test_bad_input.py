@@ -251,6 +251,7 @@ def test_cli_fits_contour_files_and_exits_1_on_a_failed_fit(
     assert code == 1, err
     assert "Traceback" not in err
     assert "warning: rec has no glottal cycle in 15.2-29.8 ms" in err, err
+    assert "RecordingWarning" not in err  # said once, in the command line's words
     assert "the fit failed: NMSE" in err and "no better than the recording's mean" in err
     saved = json.loads((tmp_path / "vfjax_output" / "rec_fit.json").read_text())
     assert saved["status"] == "worse_than_mean"

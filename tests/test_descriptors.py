@@ -1,5 +1,7 @@
 """GAW descriptors on waveforms whose values are known analytically."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -149,3 +151,22 @@ def test_an_f0_outside_phonation_is_named_as_a_frame_rate_to_check(shared_dir):
     for name, rate in real.items():
         r = load_contours(shared_dir / "data" / "real" / f"{name}_segdata.txt", rate)
         assert f0_words(r.area, r.fps) == "", name
+
+
+def test_a_first_fit_warns_of_what_no_model_of_sustained_phonation_describes():
+    """`fit_recordings` warns (`RecordingWarning`) of each recording's `recording_cautions`
+    before it fits anything (here it then refuses its arguments: no fit is made)."""
+    import vfjax
+    from vfjax.descriptors import RecordingWarning, recording_cautions
+
+    rec = vfjax.datasets.demo_recording("N1", seed=1, n_frames=201)
+    assert recording_cautions(rec.area, rec.fps) == []
+    stopped = vfjax.Recording(np.where(np.arange(201) < 100, rec.area, 0.0), rec.fps, name="s")
+    slow = vfjax.Recording(rec.area, 1500.0, name="slow")
+    f0 = fundamental_frequency(slow.area, slow.fps)
+    assert 40.0 < f0 < 50.0
+    (words,) = recording_cautions(stopped.area, stopped.fps, "s")
+    model = vfjax.initial_model(rec)
+    for r, says in ((stopped, words), (slow, f"slow has an f0 of {f0:.0f} Hz at the 1500 fps")):
+        with pytest.warns(RecordingWarning, match=re.escape(says)), pytest.raises(ValueError):
+            vfjax.fit_recordings([r], [model, model])

@@ -9,6 +9,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 
 import numpy as np
 
@@ -260,17 +261,12 @@ def diagnosis_candidates(also) -> list | None:
 
 
 def _warn_of_recording(rec) -> None:
-    """Warnings on stderr where the recording has stretches without glottal cycles
-    (`vfjax.descriptors.phonation_breaks`) or an f0 outside phonation's
-    (`vfjax.descriptors.f0_words`)."""
-    from .descriptors import breaks_words, f0_words, phonation_breaks
+    """Warnings on stderr of what a model of sustained phonation cannot describe in the
+    recording (`vfjax.descriptors.recording_cautions`)."""
+    from .descriptors import recording_cautions
 
-    for words in (
-        breaks_words(phonation_breaks(rec.area, rec.fps), rec.name),
-        f0_words(rec.area, rec.fps, rec.name),
-    ):
-        if words:
-            print(f"vfjax: warning: {words}", file=sys.stderr)
+    for words in recording_cautions(rec.area, rec.fps, rec.name):
+        print(f"vfjax: warning: {words}", file=sys.stderr)
 
 
 def cmd_diagnose(args) -> int:
@@ -778,6 +774,7 @@ def main(argv=None) -> int:
     (the reason on stderr), 2 bad input or arguments, 130 interrupted (Ctrl-C)."""
     args = build_parser().parse_args(argv)
     from ._integrate import SimulationError
+    from .descriptors import RecordingWarning
 
     if not (args.no_cache or os.environ.get("VFJAX_NO_CACHE")):
         use_compilation_cache()
@@ -799,7 +796,9 @@ def main(argv=None) -> int:
         previous = signal.signal(signal.SIGINT, handler)
         sys.unraisablehook = _unraisable_hook(outputs, previous_hook)
     try:
-        return args.func(args)
+        with warnings.catch_warnings():  # the commands say these in their own words
+            warnings.simplefilter("ignore", RecordingWarning)
+            return args.func(args)
     except KeyboardInterrupt:
         _exit_interrupted([])
     except (SimulationError, ValueError, TypeError, OSError, ImportError) as err:

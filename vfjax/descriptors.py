@@ -111,6 +111,25 @@ def phonation_breaks(
     return [(float(edges[k] + (period if k else 0.0)), float(edges[k + 1])) for k in long]
 
 
+class RecordingWarning(UserWarning):
+    """A recording that a model of sustained phonation does not describe as it was given
+    (`recording_cautions`): `vfjax.fit_recordings` warns of it."""
+
+
+def recording_cautions(area: np.ndarray, fps: float, name: str = "the recording") -> list[str]:
+    """What a model of sustained phonation cannot describe in a GAW as it was given: its
+    stretches without glottal cycles (`phonation_breaks`, `breaks_words`) and an f0 outside
+    phonation's (`f0_words`), each in a sentence.
+
+    Arguments:
+        area: glottal area waveform, one value per frame (any unit).
+        fps: the frame rate it was given (Hz).
+        name: what the sentences call the recording.
+    """
+    found = (breaks_words(phonation_breaks(area, fps), name), f0_words(area, fps, name))
+    return [words for words in found if words]
+
+
 def f0_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
     """A caution where the GAW's f0 (`fundamental_frequency`) lies outside
     `PHONATION_F0_HZ`: the frame rate it was given is most likely not the camera's.

@@ -22,7 +22,7 @@ from .._fit import (
 )
 from .._fit._engine import DEFAULT_SWARM
 from ..compare import NO_CLEAR_FAILURE, compare
-from ..descriptors import breaks_words, f0_words, phonation_breaks
+from ..descriptors import recording_cautions
 from ..model import VocalFoldModel
 from ..recording import Recording
 from ._candidates import offered
@@ -179,12 +179,8 @@ class Investigation:
         settled = settling(self.final, recording)
         if not settled.settled:
             words += f"; {settled.words()}"
-        for caution in (
-            breaks_words(phonation_breaks(recording.area, recording.fps)),
-            f0_words(recording.area, recording.fps),
-        ):
-            if caution:
-                words += f"; {caution}"
+        for caution in recording_cautions(recording.area, recording.fps):
+            words += f"; {caution}"
         return Outcome(
             recording_name=self.recording_name,
             status=status,

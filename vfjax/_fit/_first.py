@@ -16,6 +16,7 @@ larynx never shows (on the shared FN003 the 20 ms fit's model leaves 9.6 times i
 that is not settled is made again after `SETTLING_WARMUP`, which replaces it.
 """
 
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -23,6 +24,7 @@ import jax
 import numpy as np
 from jaxtyping import Array
 
+from ..descriptors import RecordingWarning, recording_cautions
 from ..model import VocalFoldModel
 from ..presets import PRESSURE_KEY, initial_model
 from ..recording import Recording
@@ -86,7 +88,9 @@ def fit_recording(
     """Fit the model to a recording as a first fit should: from `initial_model`, with the
     subglottal pressure searched when the recording does not state it, in a box that reaches
     the model's regimes, best of ``restarts`` independent searches (one batch), after a
-    warm-up that leaves a settled oscillation.
+    warm-up that leaves a settled oscillation. Warns (`vfjax.descriptors.RecordingWarning`)
+    of what such a model cannot describe in the recording as given
+    (`vfjax.descriptors.recording_cautions`).
 
     Arguments:
         recording: the measured GAW (`vfjax.Recording`).
@@ -151,7 +155,10 @@ def fit_recordings(
     recording's first fit, from its own starting model and in its own box, with the same
     random draws as `fit_recording` of it alone (``fold_in(key, 0)``), so that its result
     does not depend on the batch (to rounding). The fits that are not settled are made again
-    after `SETTLING_WARMUP`, as one batch of their own.
+    after `SETTLING_WARMUP`, as one batch of their own. A recording that a model of
+    sustained phonation does not describe as given (stretches without glottal cycles, an
+    f0 outside phonation's: `vfjax.descriptors.recording_cautions`) is warned of first
+    (`vfjax.descriptors.RecordingWarning`), and fitted all the same.
 
     Arguments:
         recordings: the measured GAWs, all in one unit. Each fit frees the parameters
@@ -173,6 +180,9 @@ def fit_recordings(
     for r in recordings:
         if not isinstance(r, Recording):
             raise TypeError(f"recording must be a vfjax.Recording, got {type(r).__name__}")
+    for r in recordings:  # what no first fit can describe, said before it is made
+        for words in recording_cautions(r.area, r.fps, r.name):
+            warnings.warn(words, RecordingWarning, stacklevel=2)
     models = [initial_model(r) for r in recordings] if models is None else list(models)
     if len(models) != len(recordings):
         raise ValueError(f"got {len(models)} models for {len(recordings)} recordings")
