@@ -14,6 +14,7 @@ import pytest
 import vfjax
 from vfjax import Polish, Swarm, fit, fit_many
 from vfjax._fit._first import _settled_or_first
+from vfjax._fit._settling import settlings
 from vfjax.presets import PRESSURE_KEY
 from vfjax.recording import Recording, load_recording
 
@@ -835,6 +836,10 @@ def test_settling_tells_a_sustained_oscillation_from_the_start_up(n1_fit):
     assert "not settled" in transient.words() and "warmup=0.2" in transient.words()
     with pytest.raises(ValueError, match="longer than the fit's"):
         vfjax.settling(fitted, start_up, warmup_s=0.01)
+    # `fit_recordings` checks its fits in one batch, dealt to the devices: each recording's
+    # check the same, bit for bit, as alone (two recordings of one length; each pair of
+    # problems polished through the program of a check alone)
+    assert settlings([result, fitted], [noisy, start_up]) == [sustained, transient]
     # a first fit that is not settled gives way to its fit after SETTLING_WARMUP, unless
     # that one's search failed: a model that does not describe the waveform there says less
     # than the unsettled fit, which then stays, with its settling's warning

@@ -31,7 +31,7 @@ from ..recording import Recording
 from ._engine import fit_many, refuse_batch_options, stack_strong
 from ._problem import plausible_range
 from ._result import FitResult
-from ._settling import SETTLING_WARMUP, settling
+from ._settling import SETTLING_WARMUP, settlings
 
 #: The first fit's box for the stiffness and the damping factor, as factors of the
 #: starting model's values (K matched to the recording's f0).
@@ -131,13 +131,13 @@ def _to_settle(settle: bool, options: dict, results, recordings) -> list[int]:
     settled (`settling`); none where ``settle`` is off or a warm-up was given."""
     if not settle or options.get("warmup") is not None:
         return []
-    return [
+    due = [
         i
-        for i, (r, rec) in enumerate(zip(results, recordings))
-        if np.isfinite(r.nmse)
-        and r.sampling.warmup < SETTLING_WARMUP
-        and not settling(r, rec).settled
+        for i, r in enumerate(results)
+        if np.isfinite(r.nmse) and r.sampling.warmup < SETTLING_WARMUP
     ]
+    checks = settlings([results[i] for i in due], [recordings[i] for i in due])
+    return [i for i, check in zip(due, checks) if not check.settled]
 
 
 def fit_recordings(

@@ -88,43 +88,72 @@ def settling(result: FitResult, recording: Recording, warmup_s: float | None = N
     Returns:
         `Settling`: both errors, the noise floor, and ``settled``.
     """
-    if not isinstance(result, FitResult) or not isinstance(recording, Recording):
-        raise TypeError("settling needs a vfjax.FitResult and the vfjax.Recording it fitted")
-    if recording.n_frames != result.sampling.n_frames or recording.fps != result.sampling.fps:
-        raise ValueError(
-            f"{recording.name}: {recording.n_frames} frames at {recording.fps:g} fps, but the "
-            f"fit sampled {result.sampling.n_frames} at {result.sampling.fps:g}"
-        )
-    own = float(result.sampling.warmup)
-    longer = max(SETTLING_WARMUP, 2.0 * own) if warmup_s is None else float(warmup_s)
-    if not (math.isfinite(longer) and longer > own):
-        raise ValueError(f"warmup_s must be longer than the fit's {own:g} s, got {warmup_s}")
-    # S re-projected for a GAW in pixels; otherwise a held parameter (a fit needs one name)
-    params, held = (("S",), ()) if recording.unit == "px" else (("K",), ("K",))
-    problems = []
-    for w in (own, longer):
-        sampling, period = fit_sampling(recording, w, result.sampling.substeps)
-        problems.append(prepare(result.model, recording, params, sampling, period, None, held)[0])
-    # after the fit's warm-up from its own shift at its own S (the problem's reference);
-    # after the longer one from the grid's best shift (the phase of the cycle at the first
-    # frame moves): half a frame of misalignment on a GAW with sharp closures costs more
-    # error than a settled model's drift
-    first = np.zeros(problems[0].point_size)
-    first[len(problems[0].names)] = result.time_shift / float(problems[0].period)
-    grid = start_point(problems[1], np.zeros(len(problems[1].names)))
+    return settlings([result], [recording], warmup_s)[0]
+
+
+def settlings(results, recordings, warmup_s: float | None = None) -> list[Settling]:
+    """`settling` of each of ``results`` (fits of the ``recordings``, in order): their S and
+    time-shift polishes in one batch, dealt to the devices (each recording's pair through
+    the same program as alone, so each check is the same as `settling` of it alone)."""
+    checks, keys = [], []
+    for result, recording in zip(results, recordings):
+        if not isinstance(result, FitResult) or not isinstance(recording, Recording):
+            raise TypeError("settling needs a vfjax.FitResult and the vfjax.Recording it fitted")
+        if recording.n_frames != result.sampling.n_frames or recording.fps != result.sampling.fps:
+            raise ValueError(
+                f"{recording.name}: {recording.n_frames} frames at {recording.fps:g} fps, but "
+                f"the fit sampled {result.sampling.n_frames} at {result.sampling.fps:g}"
+            )
+        own = float(result.sampling.warmup)
+        longer = max(SETTLING_WARMUP, 2.0 * own) if warmup_s is None else float(warmup_s)
+        if not (math.isfinite(longer) and longer > own):
+            raise ValueError(f"warmup_s must be longer than the fit's {own:g} s, got {warmup_s}")
+        # S re-projected for a GAW in pixels; otherwise a held parameter (a fit needs one name)
+        params, held = (("S",), ()) if recording.unit == "px" else (("K",), ("K",))
+        problems = []
+        for w in (own, longer):
+            sampling, period = fit_sampling(recording, w, result.sampling.substeps)
+            problems.append(
+                prepare(result.model, recording, params, sampling, period, None, held)[0]
+            )
+        # after the fit's warm-up from its own shift at its own S (the problem's reference);
+        # after the longer one from the grid's best shift (the phase of the cycle at the
+        # first frame moves): half a frame of misalignment on a GAW with sharp closures costs
+        # more error than a settled model's drift
+        first = np.zeros(problems[0].point_size)
+        first[len(problems[0].names)] = result.time_shift / float(problems[0].period)
+        grid = start_point(problems[1], np.zeros(len(problems[1].names)))
+        pair = jax.tree.map(stack_strong, *problems)
+        checks.append((own, longer, pair, grid, first))
+        leaves, tree = jax.tree.flatten(pair)  # a program: its structure and shapes
+        keys.append((tree, tuple((np.shape(x), str(getattr(x, "dtype", type(x)))) for x in leaves)))
     # S and the shift polished by the fits' own compiled polish (the problems have the
-    # structure and sizes of a fit of ``result``'s model, so that program is reused): one
-    # slice of two, the first from its point, the second from the grid's
-    polished = polish_slices(
-        jax.tree.map(stack_strong, *problems),
-        np.ones(2, bool),
-        tuple(np.stack([np.asarray(x)] * 2) for x in grid[:2]),
-        np.stack([first, np.asarray(grid[0])]),
-        np.array([True, False]),
-        DEFAULT_POLISH,
-    )
-    errors = [float(c) for c in np.asarray(polished[3])]
-    noise = noise_level(recording.area, result.fitted_gaw(recording))
-    measured = recording.n_frames * noise**2 / float(np.sum(recording.area**2))
-    floor = min(measured, errors[0]) if noise > 0 else errors[0]
-    return Settling(own, longer, errors[0], errors[1], floor)
+    # structure and sizes of a fit of each result's model, so that program is reused): one
+    # slice of two per recording, the first from its point, the second from the grid's; the
+    # recordings whose pairs share a program in one batch
+    errors = [None] * len(checks)
+    for key in dict.fromkeys(keys):
+        mine = [i for i, k in enumerate(keys) if k == key]
+        polished = polish_slices(
+            jax.tree.map(lambda *x: np.concatenate(x), *[checks[i][2] for i in mine]),
+            np.ones(2 * len(mine), bool),
+            tuple(
+                np.concatenate([np.stack([np.asarray(checks[i][3][j])] * 2) for i in mine])
+                for j in range(2)
+            ),
+            np.concatenate([np.stack([checks[i][4], np.asarray(checks[i][3][0])]) for i in mine]),
+            np.tile([True, False], len(mine)),
+            DEFAULT_POLISH,
+        )
+        costs = np.asarray(polished[3])
+        for n, i in enumerate(mine):
+            errors[i] = (float(costs[2 * n]), float(costs[2 * n + 1]))
+    out = []
+    for (own, longer, _, _, _), (fit_error, error), result, recording in zip(
+        checks, errors, results, recordings
+    ):
+        noise = noise_level(recording.area, result.fitted_gaw(recording))
+        measured = recording.n_frames * noise**2 / float(np.sum(recording.area**2))
+        floor = min(measured, fit_error) if noise > 0 else fit_error
+        out.append(Settling(own, longer, fit_error, error, floor))
+    return out
