@@ -64,9 +64,9 @@ def cycle_starts(area, fps: float, level: float = 0.5) -> np.ndarray:
     return (i + frac) / fps
 
 
-#: The fundamental frequencies of phonation (Hz): from the lowest vocal fry of a male voice to
-#: the top of a soprano's modal register. A recording whose f0 lies outside was most likely
-#: given the wrong frame rate (`f0_words`).
+#: The fundamental frequencies of phonation (Hz): from a low male voice to the top of a
+#: soprano's modal register. A recording whose f0 lies outside was most likely given the wrong
+#: frame rate (`f0_words`); vocal fry, which can lie lower, is named too.
 PHONATION_F0_HZ = (50.0, 1000.0)
 
 #: A stretch of a GAW without a glottal cycle longer than this many cycle lengths is a
@@ -153,6 +153,15 @@ def f0_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
     )
 
 
+def break_spans(breaks: list[tuple[float, float]]) -> str:
+    """`phonation_breaks`' stretches as text, in ms ("15.2-29.8 ms, ..."; "" where none).
+
+    Arguments:
+        breaks: the stretches (`phonation_breaks`: start and end, s).
+    """
+    return ", ".join(f"{a * 1e3:.1f}-{b * 1e3:.1f} ms" for a, b in breaks)
+
+
 def breaks_words(breaks: list[tuple[float, float]], name: str = "the recording") -> str:
     """`phonation_breaks` in a sentence, with what to do about them.
 
@@ -165,11 +174,10 @@ def breaks_words(breaks: list[tuple[float, float]], name: str = "the recording")
     """
     if not breaks:
         return ""
-    spans = ", ".join(f"{a * 1e3:.1f}-{b * 1e3:.1f} ms" for a, b in breaks)
     return (
-        f"{name} has no glottal cycle in {spans} (a phonation break, or the glottis lost by "
-        "the segmentation): a model of sustained phonation does not follow it, so fit the "
-        "frames of phonation alone"
+        f"{name} has no glottal cycle in {break_spans(breaks)} (a phonation break, or the "
+        "glottis lost by the segmentation): a model of sustained phonation does not follow "
+        "it, so fit the frames of phonation alone"
     )
 
 

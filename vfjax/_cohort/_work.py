@@ -95,7 +95,7 @@ def _measured_columns(rec: Recording) -> dict:
     folds can be told apart (per-fold areas, contour edges or video masks split by the
     glottal midline), the asymmetry indices ASI and PAI (`vfjax.asymmetry`)."""
     from ..asymmetry import asymmetry_indices, fold_areas
-    from ..descriptors import describe, phonation_breaks
+    from ..descriptors import break_spans, describe, phonation_breaks
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -105,7 +105,7 @@ def _measured_columns(rec: Recording) -> dict:
         row[column] = float(getattr(d, field))
     breaks = phonation_breaks(rec.area, rec.fps)
     if breaks:  # stretches without glottal cycles, which no fit follows
-        row["phonation breaks"] = ", ".join(f"{a * 1e3:.1f}-{b * 1e3:.1f} ms" for a, b in breaks)
+        row["phonation breaks"] = break_spans(breaks)
     try:
         indices = asymmetry_indices(*fold_areas(rec), rec.fps)
     except ValueError:  # a GAW alone, or a glottis that never spans two rows: no midline

@@ -95,7 +95,7 @@ def settlings(results, recordings, warmup_s: float | None = None) -> list[Settli
     """`settling` of each of ``results`` (fits of the ``recordings``, in order): their S and
     time-shift polishes in one batch, dealt to the devices (each recording's pair through
     the same program as alone, so each check is the same as `settling` of it alone)."""
-    checks, keys = [], []
+    warmups, pairs, grids, firsts, keys = [], [], [], [], []
     for result, recording in zip(results, recordings):
         if not isinstance(result, FitResult) or not isinstance(recording, Recording):
             raise TypeError("settling needs a vfjax.FitResult and the vfjax.Recording it fitted")
@@ -122,26 +122,26 @@ def settlings(results, recordings, warmup_s: float | None = None) -> list[Settli
         # more error than a settled model's drift
         first = np.zeros(problems[0].point_size)
         first[len(problems[0].names)] = result.time_shift / float(problems[0].period)
-        grid = start_point(problems[1], np.zeros(len(problems[1].names)))
+        point, cost = start_point(problems[1], np.zeros(len(problems[1].names)))[:2]
         pair = jax.tree.map(stack_strong, *problems)
-        checks.append((own, longer, pair, grid, first))
         leaves, tree = jax.tree.flatten(pair)  # a program: its structure and shapes
         keys.append((tree, tuple((np.shape(x), str(getattr(x, "dtype", type(x)))) for x in leaves)))
+        warmups.append((own, longer))
+        pairs.append(pair)
+        grids.append((np.asarray(point), np.asarray(cost)))
+        firsts.append(first)
     # S and the shift polished by the fits' own compiled polish (the problems have the
     # structure and sizes of a fit of each result's model, so that program is reused): one
     # slice of two per recording, the first from its point, the second from the grid's; the
     # recordings whose pairs share a program in one batch
-    errors = [None] * len(checks)
+    errors = [None] * len(pairs)
     for key in dict.fromkeys(keys):
         mine = [i for i, k in enumerate(keys) if k == key]
         polished = polish_slices(
-            jax.tree.map(lambda *x: np.concatenate(x), *[checks[i][2] for i in mine]),
+            jax.tree.map(lambda *x: np.concatenate(x), *[pairs[i] for i in mine]),
             np.ones(2 * len(mine), bool),
-            tuple(
-                np.concatenate([np.stack([np.asarray(checks[i][3][j])] * 2) for i in mine])
-                for j in range(2)
-            ),
-            np.concatenate([np.stack([checks[i][4], np.asarray(checks[i][3][0])]) for i in mine]),
+            tuple(np.concatenate([np.stack([grids[i][j]] * 2) for i in mine]) for j in range(2)),
+            np.concatenate([np.stack([firsts[i], grids[i][0]]) for i in mine]),
             np.tile([True, False], len(mine)),
             DEFAULT_POLISH,
         )
@@ -149,8 +149,8 @@ def settlings(results, recordings, warmup_s: float | None = None) -> list[Settli
         for n, i in enumerate(mine):
             errors[i] = (float(costs[2 * n]), float(costs[2 * n + 1]))
     out = []
-    for (own, longer, _, _, _), (fit_error, error), result, recording in zip(
-        checks, errors, results, recordings
+    for (own, longer), (fit_error, error), result, recording in zip(
+        warmups, errors, results, recordings
     ):
         noise = noise_level(recording.area, result.fitted_gaw(recording))
         measured = recording.n_frames * noise**2 / float(np.sum(recording.area**2))
