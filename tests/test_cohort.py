@@ -212,6 +212,12 @@ def test_a_folder_holds_only_its_recordings(shared_dir, tmp_path):
     text = f"{begin * 1e3:.1f}-{end * 1e3:.1f} ms"
     assert _measured_columns(stopped)["phonation breaks"] == text
     assert begin > 0.0 and end == pytest.approx((n - 1) / stopped.fps)  # to its last frame
+    # white noise: no glottal vibration, its autocorrelation in a column of its own (and no
+    # "breaks" between the noise's chance crossings)
+    noise = np.random.default_rng(0).normal(100.0, 30.0, n)
+    row = _measured_columns(dataclasses.replace(loaded[1], area=noise))
+    assert row["periodicity"] < vfjax.descriptors.MIN_PERIODICITY
+    assert "phonation breaks" not in row and "periodicity" not in _measured_columns(stopped)
     with pytest.raises(ValueError, match="disagrees with the sidecar"):
         load_entry(dataclasses.replace(entries[0], fps=8000.0))
     # a header in quotes, as a spreadsheet writes it: the scan reads it as the loader does

@@ -1,6 +1,7 @@
 """GAW descriptors on waveforms whose values are known analytically."""
 
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -70,6 +71,19 @@ def test_no_cycle_warns_and_returns_nan():
     assert detect_cycles(np.ones(50), FPS) == []
 
 
+def test_noise_is_described_without_an_error():
+    """White noise, whose chance "cycles" can share their minima's frame: every descriptor
+    finite or NaN, each cycle ending after it opens, and nothing raised."""
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        area = rng.normal(100.0, 30.0, int(rng.integers(20, 400)))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            d = describe(area, FPS)
+        assert not np.any(np.isinf(list(d.as_dict().values())))
+        assert all(c.opening < c.end and c.minimum <= c.maximum for c in detect_cycles(area, FPS))
+
+
 def test_bad_input_raises():
     with pytest.raises(ValueError, match="NaN"):
         describe(np.array([1.0, np.nan, 2.0]), FPS)
@@ -134,23 +148,81 @@ def test_phonation_breaks_are_the_stretches_without_cycles(shared_dir):
 def test_an_f0_outside_phonation_is_named_as_a_frame_rate_to_check(shared_dir):
     """`f0_words`: the demo recording (N1, 125 Hz at 4 kHz) and the shared real contours at
     their cameras' rates lie within `PHONATION_F0_HZ`; the demo given 1 500 or 40 000 fps has
-    an f0 of 47 or 1 250 Hz, which is named with the rate to check."""
+    an f0 of 47 or 1 250 Hz, which is named with the rate to check. A phonation break in the
+    middle (a stretch as long as eight cycles) leaves the f0 of the cycles."""
     import vfjax
-    from vfjax.descriptors import PHONATION_F0_HZ, f0_words, fundamental_frequency
+    from vfjax.descriptors import PHONATION_F0_HZ, f0_words, recording_cautions
     from vfjax.recording import load_contours
 
     rec = vfjax.datasets.demo_recording("N1", seed=1, n_frames=201)
     assert f0_words(rec.area, rec.fps) == ""
+    starts = np.flatnonzero(
+        (rec.area[:-1] < 0.25 * rec.area.max()) & (rec.area[1:] >= 0.25 * rec.area.max())
+    )
+    frames = float(np.median(np.diff(starts)))  # frames per cycle, to the frame
+    assert FPS / frames == pytest.approx(125.0, rel=0.05)
     for fps in (1500.0, 40000.0):
-        f0 = fundamental_frequency(rec.area, fps)
-        assert f0 == pytest.approx(fundamental_frequency(rec.area, rec.fps) * fps / rec.fps)
+        f0 = fps / frames
         assert not PHONATION_F0_HZ[0] <= f0 <= PHONATION_F0_HZ[1]
         words = f0_words(rec.area, fps, "r")
-        assert words.startswith(f"r has an f0 of {f0:.0f} Hz at the {fps:g} fps it was given")
+        said = float(re.match(r"r has an f0 of (\d+) Hz at the (\d+) fps it was given", words)[1])
+        assert said == pytest.approx(f0, rel=0.02) and f" {fps:g} fps" in words
     real = {"MN003_adapt": 8000.0, "FD003_pre": 8000.0, "FN003": 8000.0, "FP005_naso": 4000.0}
     for name, rate in real.items():
         r = load_contours(shared_dir / "data" / "real" / f"{name}_segdata.txt", rate)
         assert f0_words(r.area, r.fps) == "", name
+    long = vfjax.datasets.demo_recording("N1", seed=1, n_frames=401)
+    broken = np.where((np.arange(401) >= 100) & (np.arange(401) < 350), 0.0, long.area)
+    assert vfjax.descriptors.fundamental_frequency(broken, FPS) < PHONATION_F0_HZ[0]
+    (words,) = recording_cautions(broken, FPS)  # the break alone
+    assert f0_words(broken, FPS) == "" and "no glottal cycle in " in words
+
+
+def test_a_gaw_that_is_not_periodic_is_named(shared_dir):
+    """`periodicity_words`: white noise and random walks (a drifting area) of 51 to 1 001
+    frames are not periodic over any period, whatever frame rate they are given, and that
+    alone is what `recording_cautions` says of them (their "cycles" are none); every shared
+    recording, the cohort benchmark's kind of demo recording and one whose glottis stops
+    for most of it are periodic."""
+    import vfjax
+    from vfjax.descriptors import (
+        MIN_PERIODICITY,
+        periodicity,
+        periodicity_words,
+        recording_cautions,
+    )
+    from vfjax.recording import load_contours
+
+    rng = np.random.default_rng(11)
+    for n in (51, 201, 1001):
+        for fps in (2000.0, 8000.0):
+            noise = np.abs(rng.normal(100.0, 30.0, n))
+            walk = np.cumsum(rng.normal(0.0, 1.0, n))
+            for area in (noise, walk - walk.min()):
+                words = periodicity_words(area, fps, "r")
+                assert words.startswith("r is not periodic (its autocorrelation reaches ")
+                assert recording_cautions(area, fps, "r") == [words]
+    # a periodic waveform correlates fully at its period, at any frame rate it is given
+    sine = np.sin(2 * np.pi * np.arange(400) / 37.0)
+    for fps in (100.0, 4000.0, 1e6):
+        score, lag = periodicity(sine, fps, f0_range=None)
+        assert score > 0.99 and round(lag * fps) % 37 == 0  # (at a multiple of the period)
+    real = {"MN003_adapt": 8000.0, "FD003_pre": 8000.0, "FN003": 8000.0, "FP005_naso": 4000.0}
+    for name, rate in real.items():
+        r = load_contours(shared_dir / "data" / "real" / f"{name}_segdata.txt", rate)
+        assert periodicity(r.area, r.fps, f0_range=None)[0] > 0.95, name
+    for name in ("syn_base", "syn_gap", "syn_tremor"):  # (the tremor's modulation: 0.84)
+        r = vfjax.load_recording(shared_dir / "data" / "synthetic" / f"{name}.csv")
+        assert periodicity(r.area, r.fps, f0_range=None)[0] > 0.8, name
+    rec = vfjax.datasets.demo_recording("N2", seed=2, n_frames=101, jitter=0.003)
+    assert periodicity(rec.area, rec.fps, f0_range=None)[0] > 0.95
+    # a glottis that stops for three quarters of the recording: the stretch of closure
+    # correlates with itself, the cycles before it at their period
+    long = vfjax.datasets.demo_recording("N1", seed=1, n_frames=401)
+    stopped = np.where(np.arange(401) < 100, long.area, 0.0)
+    assert periodicity(stopped, FPS, f0_range=None)[0] > MIN_PERIODICITY
+    (words,) = recording_cautions(stopped, FPS, "s")
+    assert words.startswith("s has no glottal cycle in ")
 
 
 def test_a_first_fit_warns_of_what_no_model_of_sustained_phonation_describes():
@@ -163,7 +235,8 @@ def test_a_first_fit_warns_of_what_no_model_of_sustained_phonation_describes():
     assert recording_cautions(rec.area, rec.fps) == []
     stopped = vfjax.Recording(np.where(np.arange(201) < 100, rec.area, 0.0), rec.fps, name="s")
     slow = vfjax.Recording(rec.area, 1500.0, name="slow")
-    f0 = fundamental_frequency(slow.area, slow.fps)
+    (said,) = recording_cautions(slow.area, slow.fps, "slow")
+    f0 = float(re.match(r"slow has an f0 of (\d+) Hz", said)[1])
     assert 40.0 < f0 < 50.0
     (words,) = recording_cautions(stopped.area, stopped.fps, "s")
     model = vfjax.initial_model(rec)

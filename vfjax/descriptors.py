@@ -74,9 +74,13 @@ PHONATION_F0_HZ = (50.0, 1000.0)
 #: detection level, a segmentation glitch of a frame or two), two or more are.
 BREAK_CYCLES = 2.5
 
+#: The level at which `phonation_breaks` and `f0_words` find cycle starts (`cycle_starts`):
+#: a quarter of the waveform's range, so that cycles of small amplitude count.
+_START_LEVEL = 0.25
+
 
 def phonation_breaks(
-    area: np.ndarray, fps: float, level: float = 0.25
+    area: np.ndarray, fps: float, level: float = _START_LEVEL
 ) -> list[tuple[float, float]]:
     """The stretches of a GAW in which no glottal cycle starts: phonation stopped (voice
     onset or offset within the recording, a break) or the glottis lost by the segmentation
@@ -117,22 +121,28 @@ class RecordingWarning(UserWarning):
 
 
 def recording_cautions(area: np.ndarray, fps: float, name: str = "the recording") -> list[str]:
-    """What a model of sustained phonation cannot describe in a GAW as it was given: its
-    stretches without glottal cycles (`phonation_breaks`, `breaks_words`) and an f0 outside
-    phonation's (`f0_words`), each in a sentence.
+    """What a model of sustained phonation cannot describe in a GAW as it was given, each in a
+    sentence: a GAW that is not periodic (`periodicity_words`; then that alone, as its
+    "cycles" are no glottal cycles), else its stretches without glottal cycles
+    (`phonation_breaks`, `breaks_words`) and an f0 outside phonation's (`f0_words`).
 
     Arguments:
         area: glottal area waveform, one value per frame (any unit).
         fps: the frame rate it was given (Hz).
         name: what the sentences call the recording.
     """
+    aperiodic = periodicity_words(area, fps, name)
+    if aperiodic:
+        return [aperiodic]
     found = (breaks_words(phonation_breaks(area, fps), name), f0_words(area, fps, name))
     return [words for words in found if words]
 
 
 def f0_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
-    """A caution where the GAW's f0 (`fundamental_frequency`) lies outside
-    `PHONATION_F0_HZ`: the frame rate it was given is most likely not the camera's.
+    """A caution where the GAW's f0 lies outside `PHONATION_F0_HZ`: the frame rate it was
+    given is most likely not the camera's. The f0 is the inverse of the median time between
+    cycle starts (as `phonation_breaks` finds them), which a phonation break does not move
+    (`fundamental_frequency`, the inverse of their mean, counts a break as one long cycle).
 
     Arguments:
         area: glottal area waveform, one value per frame (any unit).
@@ -142,9 +152,12 @@ def f0_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
     Returns:
         The sentence; "" where f0 lies within the range or no f0 is found.
     """
-    f0 = fundamental_frequency(area, fps)
+    starts = cycle_starts(area, fps, _START_LEVEL)
+    if len(starts) < 2:
+        return ""
+    f0 = 1.0 / float(np.median(np.diff(starts)))
     low, high = PHONATION_F0_HZ
-    if not math.isfinite(f0) or low <= f0 <= high:
+    if low <= f0 <= high:
         return ""
     return (
         f"{name} has an f0 of {f0:.0f} Hz at the {fps:g} fps it was given, outside the "
@@ -181,30 +194,106 @@ def breaks_words(breaks: list[tuple[float, float]], name: str = "the recording")
     )
 
 
-def periodicity(area, fps: float, f0_range=PHONATION_F0_HZ) -> tuple[float, float]:
+def periodicity(
+    area: np.ndarray,
+    fps: float,
+    f0_range: tuple[float, float] | None = PHONATION_F0_HZ,
+    frames: np.ndarray | None = None,
+) -> tuple[float, float]:
     """How periodic a waveform is: the largest normalised autocorrelation over the lags of a
     glottal period (``f0_range``, Hz), and that lag (s).
 
     A vibrating glottis gives 0.95 or more (the shared real and synthetic recordings: 0.97 to
-    1.0); white noise of 100 frames about 0.3 to 0.45. Lags are kept to at most half the
-    recording, so every correlation spans half of it or more. Returns (0, nan) for a
-    constant waveform or one too short to hold two periods.
+    1.0); white noise of 100 frames about 0.3 to 0.45. Lags are kept to those whose pairs of
+    frames span half of the waveform or more. Returns (0, nan) for a constant waveform or
+    one too short to hold two periods.
+
+    Arguments:
+        area: the waveform, one value per frame (any unit).
+        fps: frame rate (Hz).
+        f0_range: the frequencies (Hz) whose periods are searched; None: every lag from the
+            autocorrelation's first fall to zero or below (any period, whatever frame rate
+            the waveform was given: a smooth waveform correlates highly over a fraction of
+            its period).
+        frames: which frames count (booleans, one per frame; default all): a correlation
+            takes the pairs of frames that both count, about their mean (the frames of
+            phonation, without its breaks).
     """
     a = _as_waveform(area, fps)
-    a = a - a.mean()
     n = a.size
-    lo = max(1, int(math.floor(fps / f0_range[1])))
-    hi = min(n // 2, int(math.ceil(fps / f0_range[0])))
-    if hi < lo or not np.any(a):
+    on = np.ones(n, bool) if frames is None else np.asarray(frames, bool)
+    if on.shape != a.shape:
+        raise ValueError(f"frames must hold one boolean per frame ({n}), got {on.shape}")
+    if not on.any():
         return 0.0, float("nan")
-    best, lag = -1.0, lo
-    for k in range(lo, hi + 1):
-        x, y = a[:-k], a[k:]
+    a = np.where(on, a - a[on].mean(), 0.0)
+    counted = int(on.sum())
+    lo, hi = 1, n - 1
+    if f0_range is not None:
+        lo = max(1, int(math.floor(fps / f0_range[1])))
+        hi = int(math.ceil(fps / f0_range[0]))
+    best, lag, fallen = -1.0, lo, f0_range is not None
+    for k in range(lo, min(hi, n - 1) + 1):
+        pairs = on[:-k] & on[k:]
+        if 2 * int(pairs.sum()) < counted:
+            break
+        x, y = a[:-k][pairs], a[k:][pairs]
         denom = math.sqrt(float(np.dot(x, x)) * float(np.dot(y, y)))
         r = float(np.dot(x, y)) / denom if denom > 0 else 0.0
-        if r > best:
+        fallen = fallen or r <= 0.0
+        if fallen and r > best:
             best, lag = r, k
+    if not fallen or best == -1.0 or not np.any(a):  # no period within the lags
+        return 0.0, float("nan")
     return best, lag / fps
+
+
+#: A GAW whose autocorrelation over any period (`phonation_periodicity`) stays below this
+#: is not that of a vibrating glottis (`periodicity_words`), and a video whose segmented
+#: area's does over glottal periods holds none (`vfjax.segmentation`): a vibrating glottis
+#: gives 0.95 or more, white noise of 50 frames or more at most 0.6.
+MIN_PERIODICITY = 0.7
+
+
+def phonation_periodicity(area: np.ndarray, fps: float) -> float:
+    """The periodicity of a GAW's frames of phonation: `periodicity` over any period of its
+    frames outside its `phonation_breaks`, or of all of them where those hold under a
+    quarter of it (the "breaks" of noise leave fragments, whose correlations tell nothing).
+
+    Arguments:
+        area: glottal area waveform, one value per frame (any unit).
+        fps: the frame rate it was given (Hz).
+    """
+    frames = np.ones(np.size(area), bool)
+    for begin, end in phonation_breaks(area, fps):
+        frames[int(math.ceil(begin * fps - 1e-9)) : int(math.floor(end * fps + 1e-9)) + 1] = False
+    if 4 * frames.sum() < frames.size:
+        frames[:] = True
+    return periodicity(area, fps, f0_range=None, frames=frames)[0]
+
+
+def periodicity_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
+    """A caution where the GAW is not periodic (`phonation_periodicity` below
+    `MIN_PERIODICITY`): noise, a segmentation that lost the glottis, or a vibration too
+    irregular for a model of sustained phonation, whose fit describes little of it.
+
+    Arguments:
+        area: glottal area waveform, one value per frame (any unit).
+        fps: the frame rate it was given (Hz).
+        name: what the sentence calls the recording.
+
+    Returns:
+        The sentence; "" where the GAW is periodic.
+    """
+    score = phonation_periodicity(area, fps)
+    if score >= MIN_PERIODICITY:
+        return ""
+    return (
+        f"{name} is not periodic (its autocorrelation reaches {score:.2f} at best over any "
+        f"period, where a vibrating glottis gives 0.95 or more): it is noise, a segmentation "
+        "that lost the glottis, or a vibration too irregular for a model of sustained "
+        "phonation, and a fit describes little of it"
+    )
 
 
 def fundamental_frequency(area, fps: float) -> float:
@@ -262,7 +351,8 @@ def detect_cycles(area, fps: float, level: float = 0.05) -> list[Cycle]:
     for k in range(len(mids)):
         lo_i = lows[k]
         base = a[lo_i]
-        seg_max = a[lo_i : (lows[k + 1] if k + 1 < len(lows) else a.size)].max()
+        # (to the next cycle's minimum, inclusive: two cycles' minima can share a frame)
+        seg_max = a[lo_i : (lows[k + 1] + 1 if k + 1 < len(lows) else a.size)].max()
         thr = base + level * (seg_max - base)
         i = lo_i
         while i < mids[k] and a[i + 1] < thr:

@@ -497,9 +497,6 @@ def segment_video(
 #: covers a few percent of a laryngeal video's frame (0.6-1.9 % in the shared clips), while
 #: thresholding a video of noise marks 60-90 % of it.
 MAX_GLOTTIS_FRACTION = 0.25
-#: The least periodicity (`vfjax.descriptors.periodicity`) of a glottal area waveform: the
-#: shared clips and contour recordings give 0.97 to 1.0, noise 0.3 to 0.45.
-MIN_PERIODICITY = 0.7
 
 
 def video_to_recording(path: str | PathLike, fps: float | None = None, **kwargs: Any) -> Recording:
@@ -526,12 +523,13 @@ def frames_to_recording(
         file_fps: the rate the file states, if any.
         check: refuse a result that is no glottal area waveform: a dark region covering
             more than `MAX_GLOTTIS_FRACTION` of the frame, or an area whose periodicity is
-            below `MIN_PERIODICITY` (a video of noise, or with no vibrating glottis).
+            below `vfjax.descriptors.MIN_PERIODICITY` (a video of noise, or with no vibrating
+            glottis).
         kwargs: passed to `segment_video`.
     """
     import pathlib
 
-    from .descriptors import periodicity
+    from .descriptors import MIN_PERIODICITY, periodicity
 
     if fps is None and file_fps is None:
         raise ValueError(f"{source}: the frame rate is not in the file; give fps (--fps)")

@@ -95,7 +95,13 @@ def _measured_columns(rec: Recording) -> dict:
     folds can be told apart (per-fold areas, contour edges or video masks split by the
     glottal midline), the asymmetry indices ASI and PAI (`vfjax.asymmetry`)."""
     from ..asymmetry import asymmetry_indices, fold_areas
-    from ..descriptors import break_spans, describe, phonation_breaks
+    from ..descriptors import (
+        MIN_PERIODICITY,
+        break_spans,
+        describe,
+        phonation_breaks,
+        phonation_periodicity,
+    )
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -103,8 +109,11 @@ def _measured_columns(rec: Recording) -> dict:
     row = {"fps [Hz]": rec.fps, "frames": rec.n_frames, "unit": rec.unit}
     for column, field in DESCRIPTOR_COLUMNS:
         row[column] = float(getattr(d, field))
+    score = phonation_periodicity(rec.area, rec.fps)
     breaks = phonation_breaks(rec.area, rec.fps)
-    if breaks:  # stretches without glottal cycles, which no fit follows
+    if score < MIN_PERIODICITY:  # no glottal vibration a model of phonation describes
+        row["periodicity"] = score
+    elif breaks:  # stretches without glottal cycles, which no fit follows
         row["phonation breaks"] = break_spans(breaks)
     try:
         indices = asymmetry_indices(*fold_areas(rec), rec.fps)
