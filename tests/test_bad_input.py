@@ -738,6 +738,19 @@ def test_video_at_a_playback_rate_is_refused_unless_the_camera_rate_is_given(sha
         video_to_recording(clip)
     rec = video_to_recording(clip, fps=4000.0)
     assert rec.fps == 4000.0 and rec.area.max() > 0
+    # `vfjax fit` and `vfjax diagnose` read a video as a cohort does: segmented, split into
+    # the folds' areas (which add up to the glottis'), the masks dropped; at the file's 30 fps
+    # it is refused with the same words
+    from argparse import Namespace
+
+    from vfjax.cli import _load_input
+
+    read = _load_input(Namespace(recording=str(clip), fps=4000.0))
+    np.testing.assert_array_equal(read.area, rec.area)
+    assert read.masks is None and read.folds.shape == (rec.n_frames, 2)
+    np.testing.assert_allclose(read.folds.sum(axis=1), read.area, rtol=1e-9)
+    with pytest.raises(ValueError, match="30 Hz .* give it with --fps"):
+        _load_input(Namespace(recording=str(clip), fps=None))
     flat = np.random.default_rng(1).normal(100, 1, (64, 32, 32))
     flat[:, 10:20, 10:20] += np.random.default_rng(2).normal(0, 30, (64, 10, 10))
     with pytest.raises(ValueError, match="no glottis found|no vibrating glottis found"):

@@ -219,8 +219,11 @@ def _diagnosis_section(out):
 
 def _load_input(args):
     """The recording named on the command line: a GAW table with its sidecar (or with --fps,
-    where it has none), or a contour file (``.txt``, with --fps)."""
+    where it has none), a contour file (``.txt``, with --fps), or a high-speed video,
+    segmented into its glottal area (split into the folds' where it can be) as
+    `vfjax extract` and a cohort segment it."""
     from .recording import check_frame_rate, load_contours, load_recording
+    from .video import VIDEO_SUFFIXES
 
     path = pathlib.Path(args.recording)
     if args.fps is not None:
@@ -229,6 +232,10 @@ def _load_input(args):
         if args.fps is None:
             raise ValueError(f"{path.name}: a contour file carries no frame rate; give --fps")
         return load_contours(path, args.fps)
+    if path.suffix.lower() in VIDEO_SUFFIXES:
+        from .segmentation import video_to_recording
+
+        return video_to_recording(path, args.fps, folds=True, progress=True)
     return load_recording(path, fps=args.fps)
 
 
@@ -584,13 +591,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--force", action="store_true", help="overwrite the files of an earlier run")
     run.set_defaults(func=cmd_run)
 
-    f = sub.add_parser("fit", help="fit the paper's model to a recording (CSV/TSV + sidecar)")
+    f = sub.add_parser("fit", help="fit the paper's model to a recording (GAW table or video)")
     f.add_argument(
         "recording",
-        help="GAW table (its sidecar is the same path with .json), or a "
-        "*_segdata.txt contour file (with --fps)",
+        help="GAW table (its sidecar is the same path with .json), a "
+        "*_segdata.txt contour file (with --fps), or a high-speed video (segmented first)",
     )
-    f.add_argument("--fps", type=float, help="frame rate, Hz (contour files)")
+    f.add_argument("--fps", type=float, help="frame rate, Hz (contour files; a video's camera)")
     f.add_argument("--out", default="vfjax_output", help="output folder (default: %(default)s)")
     f.add_argument(
         "--params",
@@ -627,10 +634,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     dg = sub.add_parser("diagnose", help="fit, find the missing effect, extend, write a report")
     dg.add_argument(
-        "recording", help="GAW table + .json sidecar, or a *_segdata.txt contour file (with --fps)"
+        "recording",
+        help="GAW table + .json sidecar, a *_segdata.txt contour file (with --fps), or a "
+        "high-speed video (segmented first)",
     )
     dg.add_argument("--out", default="vfjax_diagnosis", help="report folder (default: %(default)s)")
-    dg.add_argument("--fps", type=float, help="frame rate, Hz (contour files)")
+    dg.add_argument("--fps", type=float, help="frame rate, Hz (contour files; a video's camera)")
     dg.add_argument(
         "--params",
         nargs="+",

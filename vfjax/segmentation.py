@@ -499,14 +499,37 @@ def segment_video(
 MAX_GLOTTIS_FRACTION = 0.25
 
 
-def video_to_recording(path: str | PathLike, fps: float | None = None, **kwargs: Any) -> Recording:
+def video_to_recording(
+    path: str | PathLike, fps: float | None = None, *, folds: bool = False, **kwargs: Any
+) -> Recording:
     """Read a video and segment it: a `Recording` of the glottal area (pixels) with its
-    coverage as masks. ``fps`` (Hz) is required when the file does not store it, and overrides the
-    file's rate (a container may store a playback rate, such as 30 fps)."""
+    coverage as masks.
+
+    Arguments:
+        path: the video file (`vfjax.video.VIDEO_SUFFIXES`).
+        fps: the camera's frame rate (Hz); required when the file does not store it, and
+            overrides the file's rate (a container may store a playback rate, such as 30
+            fps).
+        folds: split the area into the left and right folds' by the glottal midline, where
+            the glottis spans rows to split (`vfjax.asymmetry.with_fold_areas`), and drop the
+            masks (a frame's worth of floats per frame): the recording that a fit takes, as
+            `vfjax fit`, `vfjax diagnose` and a cohort read a video.
+        kwargs: passed to `frames_to_recording` (and on to `segment_video`).
+    """
     from .video import read_video
 
     video, file_fps = read_video(path)
-    return frames_to_recording(video, fps, source=path, file_fps=file_fps, **kwargs)
+    rec = frames_to_recording(video, fps, source=path, file_fps=file_fps, **kwargs)
+    del video
+    if not folds:
+        return rec
+    from .asymmetry import glottal_midline, with_fold_areas
+
+    try:
+        midline = glottal_midline(masks=rec.masks)
+    except ValueError:  # a glottis that never spans two rows: no midline
+        return dataclasses.replace(rec, masks=None)
+    return dataclasses.replace(with_fold_areas(rec, midline), masks=None)
 
 
 def frames_to_recording(

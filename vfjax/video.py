@@ -56,6 +56,10 @@ def _declared_shape(path, suffix):
     return None
 
 
+#: Suffixes of the high-speed videos `read_video` reads (a .mraw through its .cih/.cihx).
+VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv", ".tif", ".tiff", ".npy", ".cih", ".cihx")
+
+
 def read_video(path) -> tuple[np.ndarray, float | None]:
     """Read a video file; returns (frames, fps or None when the file does not say).
 
@@ -65,8 +69,7 @@ def read_video(path) -> tuple[np.ndarray, float | None]:
     if not path.exists():
         raise FileNotFoundError(f"no video at {path}")
     suffix = path.suffix.lower()
-    known = (".tif", ".tiff", ".npy", ".cih", ".cihx", ".mraw", ".avi", ".mp4", ".mov", ".mkv")
-    if suffix not in known:
+    if suffix not in (*VIDEO_SUFFIXES, ".mraw"):
         raise ValueError(
             f"unsupported video format {suffix!r}: use .tif/.tiff, .npy, .cih/.cihx "
             "(+ .mraw), .avi or .mp4"

@@ -16,14 +16,13 @@ from ..recording import (
     check_frame_rate,
     table_delimiter,
 )
+from ..video import VIDEO_SUFFIXES
 
 #: Suffixes of GAW tables (read with their JSON sidecar).
 TABLE_SUFFIXES = (".csv", ".tsv")
 #: Suffix of contour files (left and right glottal edges per image row); their frame rate
 #: comes from the manifest or the cohort's ``fps``.
 CONTOUR_SUFFIXES = (".txt",)
-#: Suffixes of high-speed videos (segmented first; `vfjax.segmentation`).
-VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv", ".tif", ".tiff", ".npy", ".cih", ".cihx")
 #: Manifest columns that are not grouping columns.
 MANIFEST_COLUMNS = ("path", "fps")
 
@@ -265,15 +264,6 @@ def load_entry(entry: CohortEntry) -> Recording:
 
 
 def _load_video(entry: CohortEntry) -> Recording:
-    from ..asymmetry import glottal_midline, with_fold_areas
-    from ..segmentation import frames_to_recording
-    from ..video import read_video
+    from ..segmentation import video_to_recording
 
-    video, file_fps = read_video(entry.path)
-    rec = frames_to_recording(video, entry.fps, source=entry.path, file_fps=file_fps)
-    del video
-    try:
-        midline = glottal_midline(masks=rec.masks)
-    except ValueError:
-        return dataclasses.replace(rec, masks=None)
-    return dataclasses.replace(with_fold_areas(rec, midline), masks=None)
+    return video_to_recording(entry.path, entry.fps, folds=True)
