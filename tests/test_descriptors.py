@@ -167,6 +167,7 @@ def test_an_f0_outside_phonation_is_named_as_a_frame_rate_to_check(shared_dir):
         words = f0_words(rec.area, fps, "r")
         said = float(re.match(r"r has an f0 of (\d+) Hz at the (\d+) fps it was given", words)[1])
         assert said == pytest.approx(f0, rel=0.02) and f" {fps:g} fps" in words
+        assert ("or vocal fry" in words) == (f0 < 50.0)  # (47 Hz: a pulse rate of fry)
     real = {"MN003_adapt": 8000.0, "FD003_pre": 8000.0, "FN003": 8000.0, "FP005_naso": 4000.0}
     for name, rate in real.items():
         r = load_contours(shared_dir / "data" / "real" / f"{name}_segdata.txt", rate)
@@ -202,6 +203,24 @@ def test_a_gaw_that_is_not_periodic_is_named(shared_dir):
                 words = periodicity_words(area, fps, "r")
                 assert words.startswith("r is not periodic (its autocorrelation reaches ")
                 assert recording_cautions(area, fps, "r") == [words]
+    # each lag's correlation (computed by FFT) is the direct one over the pairs of counted
+    # frames about their mean, the lags stopping where the pairs span under half of them
+    area, counted = rng.normal(0.0, 1.0, 97).cumsum(), rng.random(97) > 0.2
+    area[counted] += 5 * np.sin(np.arange(97)[counted] / 2.0)
+    mean = area[counted].mean()
+    direct = {}
+    for k in range(1, 97):
+        both = counted[:-k] & counted[k:]
+        if 2 * both.sum() < counted.sum():
+            break
+        x, y = area[:-k][both] - mean, area[k:][both] - mean
+        direct[k] = x @ y / np.sqrt((x @ x) * (y @ y))
+    for f0_range in ((100.0, 1000.0), (10.0, 400.0)):
+        score, lag = periodicity(area, 1000.0, f0_range, frames=counted)
+        low, high = np.floor(1000.0 / f0_range[1]), np.ceil(1000.0 / f0_range[0])
+        ks = [k for k in direct if low <= k <= high]  # (whole frames about the periods)
+        assert score == pytest.approx(max(direct[k] for k in ks), abs=1e-12)
+        assert direct[round(lag * 1000.0)] == pytest.approx(score, abs=1e-12)
     # a periodic waveform correlates fully at its period, at any frame rate it is given
     sine = np.sin(2 * np.pi * np.arange(400) / 37.0)
     for fps in (100.0, 4000.0, 1e6):

@@ -66,8 +66,11 @@ def cycle_starts(area, fps: float, level: float = 0.5) -> np.ndarray:
 
 #: The fundamental frequencies of phonation (Hz): from a low male voice to the top of a
 #: soprano's modal register. A recording whose f0 lies outside was most likely given the wrong
-#: frame rate (`f0_words`); vocal fry, which can lie lower, is named too.
+#: frame rate (`f0_words`).
 PHONATION_F0_HZ = (50.0, 1000.0)
+#: The pulse rates of vocal fry (Hz) that lie below `PHONATION_F0_HZ`: an f0 there may be
+#: fry rather than a wrong frame rate, and `f0_words` says so.
+VOCAL_FRY_HZ = (20.0, 50.0)
 
 #: A stretch of a GAW without a glottal cycle longer than this many cycle lengths is a
 #: phonation break (`phonation_breaks`): one missed cycle is not (a weak cycle below the
@@ -159,9 +162,10 @@ def f0_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
     low, high = PHONATION_F0_HZ
     if low <= f0 <= high:
         return ""
+    fry = " (or vocal fry, whose pulses can come slower)" if VOCAL_FRY_HZ[0] <= f0 < low else ""
     return (
         f"{name} has an f0 of {f0:.0f} Hz at the {fps:g} fps it was given, outside the "
-        f"{low:.0f}-{high:.0f} Hz of phonation: check the camera's frame rate (a fit "
+        f"{low:.0f}-{high:.0f} Hz of phonation{fry}: check the camera's frame rate (a fit "
         "describes a glottis at that f0)"
     )
 
@@ -224,28 +228,40 @@ def periodicity(
     on = np.ones(n, bool) if frames is None else np.asarray(frames, bool)
     if on.shape != a.shape:
         raise ValueError(f"frames must hold one boolean per frame ({n}), got {on.shape}")
-    if not on.any():
+    if n < 2 or not on.any():
         return 0.0, float("nan")
-    a = np.where(on, a - a[on].mean(), 0.0)
-    counted = int(on.sum())
+    x = np.where(on, a - a[on].mean(), 0.0)
+    if not np.any(x):
+        return 0.0, float("nan")
+    # every lag's sums over the pairs of counted frames at once, by FFT (O(n log n): a
+    # recording of a million frames takes a second)
+    m = on.astype(float)
+    size = 1 << (2 * n - 1).bit_length()
+    fx, fm, fxx = (np.fft.rfft(v, size) for v in (x, m, x * x))
+
+    def lagged(f, g):  # sum over t of f_t g_{t+k}, for k = 0 .. n - 1
+        return np.fft.irfft(np.conj(f) * g, size)[:n]
+
+    products, pairs = lagged(fx, fx), np.rint(lagged(fm, fm))
+    first, second = lagged(fxx, fm), lagged(fm, fxx)  # each pair's first and second frame
     lo, hi = 1, n - 1
     if f0_range is not None:
         lo = max(1, int(math.floor(fps / f0_range[1])))
-        hi = int(math.ceil(fps / f0_range[0]))
-    best, lag, fallen = -1.0, lo, f0_range is not None
-    for k in range(lo, min(hi, n - 1) + 1):
-        pairs = on[:-k] & on[k:]
-        if 2 * int(pairs.sum()) < counted:
-            break
-        x, y = a[:-k][pairs], a[k:][pairs]
-        denom = math.sqrt(float(np.dot(x, x)) * float(np.dot(y, y)))
-        r = float(np.dot(x, y)) / denom if denom > 0 else 0.0
-        fallen = fallen or r <= 0.0
-        if fallen and r > best:
-            best, lag = r, k
-    if not fallen or best == -1.0 or not np.any(a):  # no period within the lags
+        hi = min(hi, int(math.ceil(fps / f0_range[0])))
+    short = np.flatnonzero(2 * pairs[lo:] < on.sum())  # pairs spanning under half of it
+    hi = min(hi, lo + int(short[0]) - 1) if short.size else hi
+    if hi < lo:
         return 0.0, float("nan")
-    return best, lag / fps
+    lags = np.arange(lo, hi + 1)
+    denom = np.sqrt(np.clip(first[lags], 0.0, None) * np.clip(second[lags], 0.0, None))
+    r = np.where(denom > 0, products[lags] / np.where(denom > 0, denom, 1.0), 0.0)
+    if f0_range is None:  # from the first fall to zero on
+        fallen = np.flatnonzero(r <= 0.0)
+        if not fallen.size:  # (no period within the lags)
+            return 0.0, float("nan")
+        r, lags = r[fallen[0] :], lags[fallen[0] :]
+    best = int(np.argmax(r))
+    return float(r[best]), float(lags[best] / fps)
 
 
 #: A GAW whose autocorrelation over any period (`phonation_periodicity`) stays below this
