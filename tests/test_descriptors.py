@@ -174,7 +174,14 @@ def test_an_f0_outside_phonation_is_named_as_a_frame_rate_to_check(shared_dir):
         assert f0_words(r.area, r.fps) == "", name
     long = vfjax.datasets.demo_recording("N1", seed=1, n_frames=401)
     broken = np.where((np.arange(401) >= 100) & (np.arange(401) < 350), 0.0, long.area)
-    assert vfjax.descriptors.fundamental_frequency(broken, FPS) < PHONATION_F0_HZ[0]
+    # the f0 and the cycles are those of the frames of phonation, the break left out: a
+    # train of 40-frame pulses with four of its twelve cycles closed
+    train = pulse_train([40] * 12, 12, 6, [200.0] * 12)
+    stopped = np.where((np.arange(train.size) >= 127) & (np.arange(train.size) < 287), 0.0, train)
+    assert fundamental_frequency(stopped, FPS) == pytest.approx(FPS / 40, rel=1e-9)
+    d = describe(stopped, FPS)
+    assert d.f0 == pytest.approx(FPS / 40, rel=1e-9) and d.n_cycles == 6
+    assert d.open_quotient == pytest.approx(describe(train, FPS).open_quotient, rel=1e-9)
     (words,) = recording_cautions(broken, FPS)  # the break alone
     assert f0_words(broken, FPS) == "" and "no glottal cycle in " in words
 

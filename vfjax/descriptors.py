@@ -145,7 +145,7 @@ def f0_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
     """A caution where the GAW's f0 lies outside `PHONATION_F0_HZ`: the frame rate it was
     given is most likely not the camera's. The f0 is the inverse of the median time between
     cycle starts (as `phonation_breaks` finds them), which a phonation break does not move
-    (`fundamental_frequency`, the inverse of their mean, counts a break as one long cycle).
+    (`fundamental_frequency` leaves breaks out of its mean).
 
     Arguments:
         area: glottal area waveform, one value per frame (any unit).
@@ -313,11 +313,22 @@ def periodicity_words(area: np.ndarray, fps: float, name: str = "the recording")
 
 
 def fundamental_frequency(area, fps: float) -> float:
-    """f0 (Hz): the inverse of the mean cycle length; NaN with fewer than two cycle starts."""
+    """f0 (Hz): the inverse of the mean cycle length, the time between consecutive cycle
+    starts (`cycle_starts`), leaving out the stretches longer than `BREAK_CYCLES` times
+    their median (a phonation break is no cycle); NaN with fewer than two cycle starts.
+
+    Arguments:
+        area: glottal area waveform, one value per frame (any unit).
+        fps: frame rate (Hz).
+    """
     starts = cycle_starts(area, fps)
     if len(starts) < 2:
         return float("nan")
-    return float((len(starts) - 1) / (starts[-1] - starts[0]))
+    lengths = np.diff(starts)
+    cycles = lengths <= BREAK_CYCLES * np.median(lengths)
+    if cycles.all():
+        return float((len(starts) - 1) / (starts[-1] - starts[0]))
+    return float(1.0 / lengths[cycles].mean())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -350,7 +361,15 @@ def _fall(a, i, thr):
 
 
 def detect_cycles(area, fps: float, level: float = 0.05) -> list[Cycle]:
-    """The complete glottal cycles of a GAW (see the module's definitions)."""
+    """The complete glottal cycles of a GAW (see the module's definitions); a stretch from
+    one opening to the next longer than `BREAK_CYCLES` times their median (a phonation
+    break) is no cycle.
+
+    Arguments:
+        area: glottal area waveform, one value per frame (any unit).
+        fps: frame rate (Hz).
+        level: the opening and closing instants' level, a fraction of each cycle's amplitude.
+    """
     a = _as_waveform(area, fps)
     starts = cycle_starts(a, fps)
     if len(starts) < 2:
@@ -397,6 +416,10 @@ def detect_cycles(area, fps: float, level: float = 0.05) -> list[Cycle]:
                 madr=float(max(0.0, -rate[p : hi_i + 1].min())),
             )
         )
+    # a "cycle" across a phonation break is none
+    lengths = np.array([c.end - c.opening for c in cycles])
+    if lengths.size and np.any(lengths > BREAK_CYCLES * np.median(lengths)):
+        cycles = [c for c, t in zip(cycles, lengths) if t <= BREAK_CYCLES * np.median(lengths)]
     return cycles
 
 
