@@ -25,7 +25,8 @@ Per cycle, with T the cycle length, T_op = peak - opening and T_cl = closing - p
 | jitter (local) | mean abs(T_i - T_i+1) / mean T | Baken & Orlikoff 2000 |
 | shimmer (local) | mean abs(amp_i - amp_i+1) / mean amp | Baken & Orlikoff 2000 |
 
-dA/dt is the central difference of the frames. Quotients are means over the complete cycles.
+dA/dt is the central difference of the frames. Quotients are means over the complete cycles
+(those in which they are defined: a cycle whose peak frame is where it opens has no AsyQ).
 """
 
 import dataclasses
@@ -465,25 +466,32 @@ def describe(area, fps: float, level: float = 0.05) -> Descriptors:
     def rel_diff(x):
         return float(np.mean(np.abs(np.diff(x))) / np.mean(x)) if len(x) > 1 else nan
 
-    return Descriptors(
-        n_cycles=len(cycles),
-        f0=float(1.0 / T.mean()),
-        open_quotient=float(np.mean((t_op + t_cl) / T)),
-        # a cycle sampled so coarsely that its peak frame is where it closes has no closing
-        # time to divide by: it has no speed quotient of its own
-        speed_quotient=float(np.nanmean(sq)) if np.isfinite(sq).any() else nan,
-        closing_quotient=float(np.mean(t_cl / T)),
-        asymmetry_quotient=float(np.mean(t_op / (t_op + t_cl))),
-        speed_index=float(np.mean((t_op - t_cl) / (t_op + t_cl))),
-        madr=float(madr.mean()),
-        amplitude_quotient=float(np.nanmean(aq)),
-        naq=float(np.nanmean(aq / T)),
-        glottal_gap_index=float(np.mean([c.minimum / c.maximum for c in cycles])),
-        closed_phase_level=float(np.mean([c.minimum for c in cycles])),
-        amplitude=float(amp.mean()),
-        jitter=rel_diff(T),
-        shimmer=rel_diff(amp),
-    )
+    def mean(x):  # over the cycles where it is defined (NaN where it is in none)
+        x = np.asarray(x, float)
+        return float(np.mean(x[np.isfinite(x)])) if np.isfinite(x).any() else nan
+
+    # a quotient whose denominator is zero in a cycle (a peak frame where the cycle opens
+    # or closes, a cycle that never rises above zero) is undefined there, not an error
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return Descriptors(
+            n_cycles=len(cycles),
+            f0=float(1.0 / T.mean()),
+            open_quotient=float(np.mean((t_op + t_cl) / T)),
+            # a cycle sampled so coarsely that its peak frame is where it closes has no closing
+            # time to divide by: it has no speed quotient of its own
+            speed_quotient=mean(sq),
+            closing_quotient=float(np.mean(t_cl / T)),
+            asymmetry_quotient=mean(t_op / (t_op + t_cl)),
+            speed_index=mean((t_op - t_cl) / (t_op + t_cl)),
+            madr=float(madr.mean()),
+            amplitude_quotient=mean(aq),
+            naq=mean(aq / T),
+            glottal_gap_index=mean([c.minimum / c.maximum for c in cycles]),
+            closed_phase_level=float(np.mean([c.minimum for c in cycles])),
+            amplitude=float(amp.mean()),
+            jitter=rel_diff(T),
+            shimmer=rel_diff(amp),
+        )
 
 
 def estimate_closure_duration(recording, levels=(0.1, 0.2)) -> float | None:
