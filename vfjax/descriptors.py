@@ -291,8 +291,9 @@ def phonation_periodicity(area: np.ndarray, fps: float) -> float:
 
 def periodicity_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
     """A caution where the GAW is not periodic (`phonation_periodicity` below
-    `MIN_PERIODICITY`): noise, a segmentation that lost the glottis, or a vibration too
-    irregular for a model of sustained phonation, whose fit describes little of it.
+    `MIN_PERIODICITY`): noise, a segmentation that lost the glottis, a vibration too
+    irregular for a model of sustained phonation, or a recording too short to hold two
+    cycles (at the frame rate it was given), whose fit describes little of it.
 
     Arguments:
         area: glottal area waveform, one value per frame (any unit).
@@ -307,9 +308,10 @@ def periodicity_words(area: np.ndarray, fps: float, name: str = "the recording")
         return ""
     return (
         f"{name} is not periodic (its autocorrelation reaches {score:.2f} at best over any "
-        f"period, where a vibrating glottis gives 0.95 or more): it is noise, a segmentation "
-        "that lost the glottis, or a vibration too irregular for a model of sustained "
-        "phonation, and a fit describes little of it"
+        f"period up to half its length, where a vibrating glottis gives 0.95 or more): it is "
+        "noise, a segmentation that lost the glottis, a vibration too irregular for a model "
+        "of sustained phonation, or too short to hold two cycles, and a fit describes little "
+        "of it"
     )
 
 
