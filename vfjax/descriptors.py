@@ -315,7 +315,7 @@ def periodicity_words(area: np.ndarray, fps: float, name: str = "the recording")
     )
 
 
-def fundamental_frequency(area, fps: float) -> float:
+def fundamental_frequency(area: np.ndarray, fps: float) -> float:
     """f0 (Hz): the inverse of the mean cycle length, the time between consecutive cycle
     starts (`cycle_starts`), leaving out the stretches longer than `BREAK_CYCLES` times
     their median (a phonation break is no cycle); NaN with fewer than two cycle starts.
@@ -363,7 +363,7 @@ def _fall(a, i, thr):
     return i + (a[i] - thr) / (a[i] - a[i + 1])
 
 
-def detect_cycles(area, fps: float, level: float = 0.05) -> list[Cycle]:
+def detect_cycles(area: np.ndarray, fps: float, level: float = 0.05) -> list[Cycle]:
     """The complete glottal cycles of a GAW (see the module's definitions); a stretch from
     one opening to the next longer than `BREAK_CYCLES` times their median (a phonation
     break) is no cycle.
