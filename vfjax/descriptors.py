@@ -193,9 +193,10 @@ def breaks_words(breaks: list[tuple[float, float]], name: str = "the recording")
     if not breaks:
         return ""
     return (
-        f"{name} has no glottal cycle in {break_spans(breaks)} (a phonation break, or the "
-        "glottis lost by the segmentation): a model of sustained phonation does not follow "
-        "it, so fit the frames of phonation alone"
+        f"{name} has no glottal cycle in {break_spans(breaks)} (a phonation break, the "
+        "glottis lost by the segmentation, or cycles skipped, as a slow pressure modulation "
+        "can skip them): a model of sustained phonation follows neither a break nor a lost "
+        "glottis, so fit the frames of phonation alone where it is one of those"
     )
 
 
@@ -267,9 +268,11 @@ def periodicity(
 
 #: A GAW whose autocorrelation over any period (`phonation_periodicity`) stays below this
 #: is not that of a vibrating glottis (`periodicity_words`), and a video whose segmented
-#: area's does over glottal periods holds none (`vfjax.segmentation`): a vibrating glottis
-#: gives 0.95 or more, white noise of 50 frames or more at most 0.6.
-MIN_PERIODICITY = 0.7
+#: area's does over glottal periods holds none (`vfjax.segmentation`). A vibrating glottis
+#: gives 0.95 or more (the shared recordings and clips 0.976-1.0), the strongest pressure
+#: modulation of the injection-recovery benchmark (depth 0.4 at 8 Hz, 50 ms) 0.68 and more,
+#: white noise of 100 frames or more at most 0.45 and of 50 frames at most about 0.6.
+MIN_PERIODICITY = 0.6
 
 
 def phonation_periodicity(area: np.ndarray, fps: float) -> float:
