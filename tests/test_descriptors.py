@@ -114,7 +114,7 @@ def test_phonation_breaks_are_the_stretches_without_cycles(shared_dir):
     end of the last cycle before it to the next cycle start, to within a cycle; one missing
     cycle is no break."""
     import vfjax
-    from vfjax.descriptors import breaks_words, cycle_starts, phonation_breaks
+    from vfjax.descriptors import BREAK_CYCLES, breaks_words, cycle_starts, phonation_breaks
     from vfjax.recording import load_contours
 
     rec = vfjax.datasets.demo_recording("N1", seed=1, n_frames=401)  # 4 kHz, 125 Hz
@@ -144,6 +144,14 @@ def test_phonation_breaks_are_the_stretches_without_cycles(shared_dir):
     for name in ("syn_base", "syn_gap", "syn_tremor"):
         r = vfjax.load_recording(shared_dir / "data" / "synthetic" / f"{name}.csv")
         assert phonation_breaks(r.area, r.fps) == [], name
+    # a glottis that vibrates throughout, sampled at three frames a cycle: its samples beat
+    # with the cycle and miss the crossings for a few cycles at a time, which is no break
+    n3 = vfjax.preset("N3")
+    faster = n3.set(K=2.0 * float(n3.params()["K"]))
+    beating = vfjax.datasets.demo_recording("N3", 1.5, 5, 2000.0, 510, model=faster)
+    gaps = np.diff(cycle_starts(beating.area, beating.fps, 0.25))
+    assert gaps.max() > BREAK_CYCLES * np.median(gaps)
+    assert phonation_breaks(beating.area, beating.fps) == []
 
 
 def test_an_f0_outside_phonation_is_named_as_a_frame_rate_to_check(shared_dir):

@@ -94,7 +94,9 @@ def phonation_breaks(
     A stretch is found where the time between consecutive cycle starts (`cycle_starts` at
     ``level``), or from the first frame to the first start, or from the last start to the
     last frame, exceeds `BREAK_CYCLES` times the cycle length (the median time between
-    consecutive starts, which a break does not move).
+    consecutive starts, which a break does not move), and the GAW within it moves by less
+    than ``level`` of its range: a glottis that vibrates but misses the crossings (a
+    recording of three frames a cycle, whose samples beat with the cycle) makes no break.
 
     Arguments:
         area: glottal area waveform, one value per frame (any unit).
@@ -116,7 +118,13 @@ def phonation_breaks(
     edges = np.concatenate([[0.0], starts, [(area.size - 1) / fps]])
     long = np.flatnonzero(np.diff(edges) > BREAK_CYCLES * period)
     # each stretch from the end of the cycle before it (a cycle length after its start)
-    return [(float(edges[k] + (period if k else 0.0)), float(edges[k + 1])) for k in long]
+    stretches = [(float(edges[k] + (period if k else 0.0)), float(edges[k + 1])) for k in long]
+
+    def still(begin, end):  # no movement of ``level`` of the range within it
+        inner = area[int(math.ceil(begin * fps)) : int(math.floor(end * fps)) + 1]
+        return inner.size == 0 or np.ptp(inner) < level * np.ptp(area)
+
+    return [stretch for stretch in stretches if still(*stretch)]
 
 
 class RecordingWarning(UserWarning):
