@@ -91,9 +91,11 @@ def by_kind(tasks: list[Task]) -> list[list[Task]]:
 
 
 def _measured_columns(rec: Recording) -> dict:
-    """The measured GAW's descriptors (`DESCRIPTOR_COLUMNS`) and, for a recording whose
-    folds can be told apart (per-fold areas, contour edges or video masks split by the
-    glottal midline), the asymmetry indices ASI and PAI (`vfjax.asymmetry`)."""
+    """The measured GAW's descriptors (`DESCRIPTOR_COLUMNS`); its `periodicity` where it is
+    not periodic, else its `phonation breaks` where it has any (`vfjax.descriptors`); and,
+    for a recording whose folds can be told apart (per-fold areas, contour edges or video
+    masks split by the glottal midline), the asymmetry indices ASI and PAI
+    (`vfjax.asymmetry`)."""
     from ..asymmetry import asymmetry_indices, fold_areas
     from ..descriptors import (
         MIN_PERIODICITY,
