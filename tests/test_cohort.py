@@ -218,6 +218,9 @@ def test_a_folder_holds_only_its_recordings(shared_dir, tmp_path):
     row = _measured_columns(dataclasses.replace(loaded[1], area=noise))
     assert row["periodicity"] < vfjax.descriptors.MIN_PERIODICITY
     assert "phonation breaks" not in row and "periodicity" not in _measured_columns(stopped)
+    assert row["cautions"].startswith(f"{loaded[1].name} is not periodic")
+    assert _measured_columns(stopped)["cautions"].startswith(f"{loaded[1].name} has no glottal")
+    assert "cautions" not in _measured_columns(loaded[1])
     with pytest.raises(ValueError, match="disagrees with the sidecar"):
         load_entry(dataclasses.replace(entries[0], fps=8000.0))
     # a header in quotes, as a spreadsheet writes it: the scan reads it as the loader does

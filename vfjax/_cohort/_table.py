@@ -65,6 +65,7 @@ def table(rows: list[dict], groups: list[str]):
     text = (
         "reason",
         "phonation breaks",
+        "cautions",
         "settled",
         "outcome",
         "effects needed",

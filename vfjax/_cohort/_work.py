@@ -92,7 +92,8 @@ def by_kind(tasks: list[Task]) -> list[list[Task]]:
 
 def _measured_columns(rec: Recording) -> dict:
     """The measured GAW's descriptors (`DESCRIPTOR_COLUMNS`); its `periodicity` where it is
-    not periodic, else its `phonation breaks` where it has any (`vfjax.descriptors`); and,
+    not periodic, else its `phonation breaks` where it has any, and the `cautions` of both
+    and of an f0 outside phonation's (`vfjax.descriptors.recording_cautions`); and,
     for a recording whose folds can be told apart (per-fold areas, contour edges or video
     masks split by the glottal midline), the asymmetry indices ASI and PAI
     (`vfjax.asymmetry`)."""
@@ -103,6 +104,7 @@ def _measured_columns(rec: Recording) -> dict:
         describe,
         phonation_breaks,
         phonation_periodicity,
+        recording_cautions,
     )
 
     with warnings.catch_warnings():
@@ -117,6 +119,9 @@ def _measured_columns(rec: Recording) -> dict:
         row["periodicity"] = score
     elif breaks:  # stretches without glottal cycles, which no fit follows
         row["phonation breaks"] = break_spans(breaks)
+    cautions = recording_cautions(rec.area, rec.fps, rec.name)
+    if cautions:  # (what `vfjax.fit_recordings` warns of, which the cohort keeps here)
+        row["cautions"] = "; ".join(cautions)
     try:
         indices = asymmetry_indices(*fold_areas(rec), rec.fps)
     except ValueError:  # a GAW alone, or a glottis that never spans two rows: no midline
@@ -204,22 +209,25 @@ def _fit_group(tasks: list[Task], options: CohortOptions) -> list:
     import jax
 
     from .._fit import fit_recordings
+    from ..descriptors import RecordingWarning
 
     recs = [t.recording for t in tasks]
     key = jax.random.key(options.seed)
     common = dict(restarts=options.restarts, swarm=options.swarm, key=key, progress=False)
-    try:
-        return fit_recordings(recs, **common)
-    except Exception:
-        if len(recs) == 1:
-            raise
-    out = []
-    for rec in recs:
+    with warnings.catch_warnings():  # (each recording's cautions are a column of its row)
+        warnings.simplefilter("ignore", RecordingWarning)
         try:
-            out.extend(fit_recordings([rec], **common))
-        except Exception as err:
-            out.append(err)
-    return out
+            return fit_recordings(recs, **common)
+        except Exception:
+            if len(recs) == 1:
+                raise
+        out = []
+        for rec in recs:
+            try:
+                out.extend(fit_recordings([rec], **common))
+            except Exception as err:
+                out.append(err)
+        return out
 
 
 def _write_fit(first):
