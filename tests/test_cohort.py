@@ -100,6 +100,10 @@ def test_cohort_table_failures_and_fits_as_alone(serial, report_html):
     report = (out / "report.md").read_text()
     assert "6 recordings: 4 done, 2 failed" in report
     assert "| gaw__short | the first fit: ValueError" in report
+    # its 30 frames hold no two cycles: the caution, in the table and the report
+    assert done.loc["gaw__short", "cautions"].startswith("gaw__short is not periodic")
+    assert "## Cautions" in report and "| gaw__short | gaw__short is not periodic" in report
+    assert (done.loc[[f"gaw__{n}" for n, *_ in RECORDINGS], "cautions"] == "").all()
     assert (out / "figures" / "parameters.png").stat().st_size > 1000
     assert (out / "recordings" / "gaw__a" / "fit.json").is_file()
     assert "gaw__short" in report_html(out / "report.md")

@@ -121,6 +121,13 @@ def write_cohort_report(frame, folder, groups: list[str], seconds: float, dpi: i
             ]
         lines += _effect_lines(done, group) if diagnosed else []
         lines += _recording_lines(done, diagnosed)
+    cautioned = frame[frame["cautions"] != ""] if "cautions" in frame.columns else frame[:0]
+    if len(cautioned):  # what a model of sustained phonation cannot describe
+        lines += ["## Cautions", "", "| recording | caution |", "|---|---|"]
+        for _, row in cautioned.iterrows():
+            caution = str(row["cautions"]).replace("|", "/")
+            lines.append(f"| {row['recording']} | {caution} |")
+        lines.append("")
     if len(failed):
         lines += ["## Failures", "", "| recording | reason |", "|---|---|"]
         for _, row in failed.iterrows():
