@@ -8,6 +8,7 @@ or ``imageio[ffmpeg]`` is needed). Colour video is converted to grey.
 
 import pathlib
 import re
+import warnings
 
 import numpy as np
 
@@ -117,7 +118,9 @@ def _read_mraw(path: pathlib.Path):
                 break
     if header is None:
         raise ValueError(f"{path}: no .cih/.cihx header beside the .mraw file")
-    video, info = pyMRAW.load_video(str(header))
+    with warnings.catch_warnings():  # (pyMRAW warns of every depth but 12 bits, read alike)
+        warnings.filterwarnings("ignore", "Not 12bit image!", UserWarning)
+        video, info = pyMRAW.load_video(str(header))
     fps = info.get("Record Rate(fps)") if isinstance(info, dict) else None
     return np.asarray(video), float(fps) if fps else None
 
