@@ -83,6 +83,17 @@ BREAK_CYCLES = 2.5
 _START_LEVEL = 0.25
 
 
+def _cycles_among(lengths: np.ndarray) -> np.ndarray:
+    """Which of the times between consecutive cycle starts (or openings) are cycles: those
+    at most `BREAK_CYCLES` times their median (a longer one spans a phonation break)."""
+    return lengths <= BREAK_CYCLES * np.median(lengths)
+
+
+def _frames_of(begin: float, end: float, fps: float) -> slice:
+    """The frames from ``begin`` to ``end`` (s from the first frame), both ends included."""
+    return slice(int(math.ceil(begin * fps - 1e-9)), int(math.floor(end * fps + 1e-9)) + 1)
+
+
 def phonation_breaks(
     area: np.ndarray, fps: float, level: float = _START_LEVEL
 ) -> list[tuple[float, float]]:
@@ -121,7 +132,7 @@ def phonation_breaks(
     stretches = [(float(edges[k] + (period if k else 0.0)), float(edges[k + 1])) for k in long]
 
     def still(begin, end):  # no movement of ``level`` of the range within it
-        inner = area[int(math.ceil(begin * fps)) : int(math.floor(end * fps)) + 1]
+        inner = area[_frames_of(begin, end, fps)]
         return inner.size == 0 or np.ptp(inner) < level * np.ptp(area)
 
     return [stretch for stretch in stretches if still(*stretch)]
@@ -143,10 +154,11 @@ def recording_cautions(area: np.ndarray, fps: float, name: str = "the recording"
         fps: the frame rate it was given (Hz).
         name: what the sentences call the recording.
     """
-    aperiodic = periodicity_words(area, fps, name)
+    breaks = phonation_breaks(area, fps)
+    aperiodic = periodicity_words(area, fps, name, breaks)
     if aperiodic:
         return [aperiodic]
-    found = (breaks_words(phonation_breaks(area, fps), name), f0_words(area, fps, name))
+    found = (breaks_words(breaks, name), f0_words(area, fps, name))
     return [words for words in found if words]
 
 
@@ -283,7 +295,9 @@ def periodicity(
 MIN_PERIODICITY = 0.6
 
 
-def phonation_periodicity(area: np.ndarray, fps: float) -> float:
+def phonation_periodicity(
+    area: np.ndarray, fps: float, breaks: list[tuple[float, float]] | None = None
+) -> float:
     """The periodicity of a GAW's frames of phonation: `periodicity` over any period of its
     frames outside its `phonation_breaks`, or of all of them where those hold under a
     quarter of it (the "breaks" of noise leave fragments, whose correlations tell nothing).
@@ -291,16 +305,22 @@ def phonation_periodicity(area: np.ndarray, fps: float) -> float:
     Arguments:
         area: glottal area waveform, one value per frame (any unit).
         fps: the frame rate it was given (Hz).
+        breaks: its `phonation_breaks`, where they are already found (default: found here).
     """
     frames = np.ones(np.size(area), bool)
-    for begin, end in phonation_breaks(area, fps):
-        frames[int(math.ceil(begin * fps - 1e-9)) : int(math.floor(end * fps + 1e-9)) + 1] = False
+    for begin, end in phonation_breaks(area, fps) if breaks is None else breaks:
+        frames[_frames_of(begin, end, fps)] = False
     if 4 * frames.sum() < frames.size:
         frames[:] = True
     return periodicity(area, fps, f0_range=None, frames=frames)[0]
 
 
-def periodicity_words(area: np.ndarray, fps: float, name: str = "the recording") -> str:
+def periodicity_words(
+    area: np.ndarray,
+    fps: float,
+    name: str = "the recording",
+    breaks: list[tuple[float, float]] | None = None,
+) -> str:
     """A caution where the GAW is not periodic (`phonation_periodicity` below
     `MIN_PERIODICITY`): noise, a segmentation that lost the glottis, a vibration too
     irregular for a model of sustained phonation, or a recording too short to hold two
@@ -310,11 +330,12 @@ def periodicity_words(area: np.ndarray, fps: float, name: str = "the recording")
         area: glottal area waveform, one value per frame (any unit).
         fps: the frame rate it was given (Hz).
         name: what the sentence calls the recording.
+        breaks: its `phonation_breaks`, where they are already found (default: found here).
 
     Returns:
         The sentence; "" where the GAW is periodic.
     """
-    score = phonation_periodicity(area, fps)
+    score = phonation_periodicity(area, fps, breaks)
     if score >= MIN_PERIODICITY:
         return ""
     return (
@@ -339,7 +360,7 @@ def fundamental_frequency(area: np.ndarray, fps: float) -> float:
     if len(starts) < 2:
         return float("nan")
     lengths = np.diff(starts)
-    cycles = lengths <= BREAK_CYCLES * np.median(lengths)
+    cycles = _cycles_among(lengths)
     if cycles.all():
         return float((len(starts) - 1) / (starts[-1] - starts[0]))
     return float(1.0 / lengths[cycles].mean())
@@ -432,8 +453,8 @@ def detect_cycles(area: np.ndarray, fps: float, level: float = 0.05) -> list[Cyc
         )
     # a "cycle" across a phonation break is none
     lengths = np.array([c.end - c.opening for c in cycles])
-    if lengths.size and np.any(lengths > BREAK_CYCLES * np.median(lengths)):
-        cycles = [c for c, t in zip(cycles, lengths) if t <= BREAK_CYCLES * np.median(lengths)]
+    if lengths.size and not _cycles_among(lengths).all():
+        cycles = [c for c, kept in zip(cycles, _cycles_among(lengths)) if kept]
     return cycles
 
 

@@ -113,8 +113,8 @@ def _measured_columns(rec: Recording) -> dict:
     row = {"fps [Hz]": rec.fps, "frames": rec.n_frames, "unit": rec.unit}
     for column, field in DESCRIPTOR_COLUMNS:
         row[column] = float(getattr(d, field))
-    score = phonation_periodicity(rec.area, rec.fps)
     breaks = phonation_breaks(rec.area, rec.fps)
+    score = phonation_periodicity(rec.area, rec.fps, breaks)
     if score < MIN_PERIODICITY:  # no glottal vibration a model of phonation describes
         row["periodicity"] = score
     elif breaks:  # stretches without glottal cycles, which no fit follows
